@@ -1,0 +1,50 @@
+"""Per-stage bake time and peak memory for one asset (default: the Stanford dragon from ../shared).
+
+    python benchmarks/bench_bake.py [ASSET] [--scale-mm X] [--resolution N]
+
+Prints one line per stage: seconds, peak traced allocation of the stage (numpy and Python), and the
+process's resident high-water mark after it. Runs without the cache so every stage does its work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+
+from sssbake.pipeline.bake import bake_asset
+from sssbake.pipeline.cache import StageCache
+from sssbake.pipeline.options import BAKE_DEFAULTS
+
+DEFAULT_ASSET = Path(__file__).resolve().parents[2] / "shared" / "assets" / "dragon" / "dragon.obj"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("asset", nargs="?", default=str(DEFAULT_ASSET))
+    ap.add_argument("--scale-mm", type=float, default=10.0, help="mm per file unit (dragon: 10 → 14 cm long)")
+    ap.add_argument("--resolution", type=int, default=BAKE_DEFAULTS.atlas_resolution)
+    args = ap.parse_args()
+    asset = Path(args.asset)
+    if not asset.exists():
+        print(f"skipped: {asset} not found")
+        return
+    options = BAKE_DEFAULTS.merged({"scale_mm": args.scale_mm, "atlas_resolution": args.resolution})
+    with tempfile.TemporaryDirectory() as tmp:
+        result = bake_asset(asset, options, Path(tmp) / asset.stem, StageCache(None), trace_memory=True)
+        sizes = {p.suffix: p.stat().st_size for p in result.outputs}
+    r = result.report
+    print(f"{asset.name}: {r['vertices']} vertices, {r['faces']} faces, total {r['seconds']:.2f} s")
+    print(f"{'stage':<14}{'seconds':>9}{'peak traced MB':>16}{'process peak RSS MB':>21}")
+    for name, s in r["stages"].items():
+        if s.get("skipped"):
+            print(f"{name:<14}{'skipped':>9}  ({s['skipped']})")
+            continue
+        print(f"{name:<14}{s['seconds']:>9.2f}{s.get('peak_traced_mb', 0.0):>16.1f}{s['peak_rss_mb']:>21.1f}")
+    print("output bytes:", json.dumps(sizes))
+    print("validation:", json.dumps(r["validation"]))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,570 @@
+"""glTF 2.0 binary (.glb) export of a BakedAsset: geometry, materials, textures and sssbake data.
+
+Layout of the file (documented for readers in ``exporters/schema/sssbake.schema.json``):
+
+- one buffer (the GLB binary chunk); every buffer view starts on a 4-byte boundary;
+- per primitive: POSITION, NORMAL, TEXCOORD_n, COLOR_0 (float32), indices (uint16/uint32), and
+  each sssbake vertex attribute as an application-specific attribute ``_KEY`` stored in its
+  own buffer view with a 4-byte-aligned ``byteStride``;
+- translucent materials get ``KHR_materials_volume``, ``KHR_materials_diffuse_transmission`` and
+  ``KHR_materials_ior`` (all optional: listed in ``extensionsUsed`` only), ``extras.sssbake``,
+  and are single-sided (see `TRANSLUCENT_EXTENSIONS`);
+- the root ``extras.sssbake`` holds the asset-level data; numpy arrays found in
+  ``BakedAsset.extras`` become accessors ("tables") referenced as ``{"accessor": index}``.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import math
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+import pygltflib as g
+
+from ..pipeline.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
+from ..pipeline.scene import SourceMaterial, TextureRef
+from .atomic import atomic_path
+
+FLOAT, BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT, UNSIGNED_INT = 5126, 5120, 5121, 5122, 5123, 5125
+ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
+
+#: encoding name -> (glTF componentType, numpy storage dtype, normalized)
+ENCODINGS: dict[str, tuple[int, type, bool]] = {
+    "float32": (FLOAT, np.float32, False),
+    "snorm8": (BYTE, np.int8, True),
+    "snorm16": (SHORT, np.int16, True),
+    "unorm8": (UNSIGNED_BYTE, np.uint8, True),
+    "unorm16": (UNSIGNED_SHORT, np.uint16, True),
+}
+COMPONENT_DTYPES = {
+    FLOAT: np.float32, BYTE: np.int8, UNSIGNED_BYTE: np.uint8, SHORT: np.int16,
+    UNSIGNED_SHORT: np.uint16, UNSIGNED_INT: np.uint32,
+}
+COMPONENT_NAMES = {
+    FLOAT: "FLOAT", BYTE: "BYTE", UNSIGNED_BYTE: "UNSIGNED_BYTE", SHORT: "SHORT",
+    UNSIGNED_SHORT: "UNSIGNED_SHORT", UNSIGNED_INT: "UNSIGNED_INT",
+}
+TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_VEC_TYPES = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
+_MAT_TYPES = {2: "MAT2", 3: "MAT3", 4: "MAT4"}
+
+#: Extensions a translucent material carries. KHR_materials_volume needs a transmission
+#: extension to mean anything; KHR_materials_diffuse_transmission is that one (glTF-Validator
+#: 2.0.0-dev.3.10 does not know it: an UNSUPPORTED_EXTENSION info, and it then skips its
+#: KHR_MATERIALS_VOLUME_NO_TRANSMISSION warning). A volume on a double-sided material is a
+#: validator warning (KHR_MATERIALS_VOLUME_DOUBLE_SIDED) and no volume at all, so translucent
+#: materials are written single-sided.
+TRANSLUCENT_EXTENSIONS = (
+    "KHR_materials_volume",
+    "KHR_materials_diffuse_transmission",
+    "KHR_materials_ior",
+)
+
+
+def generator() -> str:
+    """The ``asset.generator`` string, ``"sssbake <version>"``."""
+    return f"sssbake {importlib.metadata.version('sssbake')}"
+
+
+def quantize(data: np.ndarray, encoding: str) -> np.ndarray:
+    """Values as stored for `encoding` (glTF's normalized-integer rounding).
+
+    Parameters
+    ----------
+    data : (n,) or (n, k) float
+    encoding : str
+        A key of `ENCODINGS`.
+
+    Returns
+    -------
+    (n,) or (n, k) array of the encoding's storage dtype.
+    """
+    _, dtype, normalized = ENCODINGS[encoding]
+    if not normalized:
+        return np.asarray(data, dtype=np.float32)
+    info = np.iinfo(dtype)
+    low = -1.0 if info.min < 0 else 0.0
+    if data.size and (data.min() < low or data.max() > 1.0):
+        raise ValueError(f"{encoding} needs values in [{low:g}, 1], got [{data.min():g}, {data.max():g}]")
+    return np.round(np.asarray(data, dtype=np.float64) * info.max).astype(dtype)
+
+
+def dequantize(stored: np.ndarray, normalized: bool) -> np.ndarray:
+    """Float64 values of stored accessor data (inverse of `quantize` up to rounding).
+
+    Parameters
+    ----------
+    stored : (n,) or (n, k) array of a glTF component dtype
+    normalized : bool
+        The accessor's ``normalized`` flag.
+
+    Returns
+    -------
+    (n,) or (n, k) float64
+    """
+    if not normalized or stored.dtype.kind == "f":
+        return stored.astype(np.float64)
+    info = np.iinfo(stored.dtype)
+    # glTF decodes signed normalized values with max(c / MAX, -1): both -MAX and MIN mean -1.
+    return np.maximum(stored.astype(np.float64) / info.max, -1.0)
+
+
+def quantization_step(encoding: str) -> float:
+    """Largest absolute round-trip error of a normalized `encoding` for in-range data.
+
+    0.0 for ``"float32"``, whose rounding error is relative (2^-24).
+    """
+    _, dtype, normalized = ENCODINGS[encoding]
+    return 0.5 / np.iinfo(dtype).max if normalized else 0.0
+
+
+def read_accessor(gltf: g.GLTF2, index: int, blob: bytes | None = None) -> np.ndarray:
+    """The stored values of accessor `index`, as written (no dequantisation).
+
+    Parameters
+    ----------
+    gltf : GLTF2
+        A file loaded with pygltflib (GLB: its binary chunk is used unless `blob` is given).
+    index : int
+
+    Returns
+    -------
+    (count,) for SCALAR, (count, k) for VECk, (count, k, k) for MATk (row-major numpy layout,
+    transposed from glTF's column-major storage); the accessor's component dtype.
+    """
+    acc = gltf.accessors[index]
+    view = gltf.bufferViews[acc.bufferView]
+    data = gltf.binary_blob() if blob is None else blob
+    dtype = np.dtype(COMPONENT_DTYPES[acc.componentType]).newbyteorder("<")
+    k = TYPE_SIZES[acc.type]
+    elem = dtype.itemsize * k
+    stride = view.byteStride or elem
+    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+    raw = np.frombuffer(data, dtype=np.uint8, count=max(stride * (acc.count - 1) + elem, 0), offset=start)
+    rows = np.lib.stride_tricks.as_strided(raw, shape=(acc.count, elem), strides=(stride, 1))
+    values = np.ascontiguousarray(rows).view(dtype).astype(dtype.newbyteorder("="))
+    if acc.type == "SCALAR":
+        return values.reshape(acc.count)
+    if acc.type.startswith("MAT"):
+        n = int(acc.type[3])
+        return values.reshape(acc.count, n, n).transpose(0, 2, 1).copy()
+    return values
+
+
+def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
+    """Encode `asset` as GLB bytes.
+
+    Returns
+    -------
+    data : bytes
+    summary : dict
+        ``bytes`` (file size), ``json_bytes``, ``bin_bytes``, ``vertices`` (all primitives),
+        ``blocks`` {block name: bytes} (glTF attribute names such as ``POSITION``,
+        ``TEXCOORD_1``, ``_THICKNESS``, summed over primitives, stride padding included;
+        ``indices``; ``images``; ``tables``), ``kinds`` {``vertex``, ``index``, ``image``,
+        ``table``, ``padding``: bytes; they sum to ``bin_bytes``}, and ``bytes_per_vertex``
+        {attribute name: bytes / vertices of the primitives that carry it; ``total``: all vertex
+        data / all vertices; ``sssbake``: ``_`` attributes / all vertices}.
+
+    Raises
+    ------
+    ValueError
+        Non-finite data (the message names the array), attribute data of the wrong length or
+        out of its encoding's range, indices out of range, conflicting names.
+    """
+    gltf = g.GLTF2(asset=g.Asset(generator=generator(), version="2.0"))
+    packer = _Packer(gltf)
+    scene = asset.scene
+
+    for image in scene.images:
+        view = packer.view(image.data, "image", "images")
+        gltf.images.append(g.Image(name=image.name or None, mimeType=image.mime_type, bufferView=view))
+    samplers: dict[tuple, int] = {}
+    for tex in scene.textures:
+        key = (tex.mag_filter, tex.min_filter, tex.wrap_s, tex.wrap_t)
+        if key not in samplers:
+            samplers[key] = len(gltf.samplers)
+            gltf.samplers.append(g.Sampler(magFilter=key[0], minFilter=key[1], wrapS=key[2], wrapT=key[3]))
+        gltf.textures.append(g.Texture(sampler=samplers[key], source=tex.image))
+
+    used: set[str] = set()
+    for m, src in enumerate(scene.materials):
+        material, extensions = _material(src, asset.scattering.get(m))
+        gltf.materials.append(material)
+        used.update(extensions)
+    unknown = set(asset.scattering) - set(range(len(scene.materials)))
+    if unknown:
+        raise ValueError(f"scattering refers to materials {sorted(unknown)} not in the scene")
+
+    _check_attribute_keys(asset)
+    vertex_counts: dict[str, int] = {}
+    total_vertices = 0
+    for i, mesh in enumerate(scene.meshes):
+        prims = []
+        for j, prim in enumerate(mesh.primitives):
+            where = f"mesh {mesh.name!r} primitive {j}"
+            attributes = _primitive_attributes(packer, prim, asset.vertex_attributes.get((i, j), ()), where)
+            n = len(prim.positions)
+            total_vertices += n
+            for name in attributes:
+                vertex_counts[name] = vertex_counts.get(name, 0) + n
+            prims.append(g.Primitive(
+                attributes=g.Attributes(**attributes),
+                indices=_indices(packer, prim.faces, n, where),
+                material=prim.material,
+                mode=g.TRIANGLES,
+            ))
+        extras = {}
+        if i in asset.scale_mm:
+            scale = _finite_number(asset.scale_mm[i], f"scale_mm of mesh {mesh.name!r}")
+            extras["sssbake"] = {"schemaVersion": SCHEMA_VERSION, "scaleMm": scale}
+        gltf.meshes.append(g.Mesh(name=mesh.name or None, primitives=prims, extras=extras))
+
+    for node in scene.nodes:
+        matrix = np.asarray(node.matrix, dtype=np.float64)
+        _check_finite(matrix, f"node {node.name!r} matrix")
+        gltf.nodes.append(g.Node(
+            name=node.name or None,
+            mesh=node.mesh,
+            children=list(node.children),
+            # glTF stores matrices column-major.
+            matrix=None if np.array_equal(matrix, np.eye(4)) else matrix.flatten(order="F").tolist(),
+        ))
+    gltf.scenes.append(g.Scene(nodes=list(scene.roots)))
+    gltf.scene = 0
+
+    gltf.extras = {"sssbake": _asset_extras(asset, packer)}
+    gltf.extensionsUsed = sorted(used)
+
+    blob = packer.blob()
+    if blob:
+        gltf.buffers.append(g.Buffer(byteLength=len(blob)))
+    data, json_bytes = _pack_glb(gltf, blob)
+
+    blocks = dict(packer.blocks)
+    kinds = dict(packer.kinds)
+    kinds["padding"] = len(blob) - sum(kinds.values())
+    vertex_bytes = {name: blocks[name] for name in vertex_counts}
+    per_vertex = {name: vertex_bytes[name] / vertex_counts[name] for name in vertex_counts}
+    per_vertex["total"] = sum(vertex_bytes.values()) / total_vertices if total_vertices else 0.0
+    per_vertex["sssbake"] = (
+        sum(b for name, b in vertex_bytes.items() if name.startswith("_")) / total_vertices if total_vertices else 0.0
+    )
+    summary = {
+        "bytes": len(data),
+        "json_bytes": json_bytes,
+        "bin_bytes": len(blob),
+        "vertices": total_vertices,
+        "blocks": blocks,
+        "kinds": kinds,
+        "bytes_per_vertex": per_vertex,
+    }
+    return data, summary
+
+
+def write_glb(asset: BakedAsset, path: str | os.PathLike) -> dict:
+    """Write `asset` to `path` (.glb) atomically: on any error nothing is left behind.
+
+    Returns
+    -------
+    dict
+        `to_glb`'s summary plus ``path``.
+    """
+    data, summary = to_glb(asset)
+    with atomic_path(path) as tmp:
+        Path(tmp).write_bytes(data)
+    return {"path": str(path), **summary}
+
+
+class _Packer:
+    """Builds the one binary buffer: 4-byte-aligned buffer views, accessors, byte accounting."""
+
+    def __init__(self, gltf: g.GLTF2):
+        self.gltf = gltf
+        self.chunks: list[bytes] = []
+        self.length = 0
+        self.blocks: dict[str, int] = {}
+        self.kinds = {"vertex": 0, "index": 0, "image": 0, "table": 0}
+
+    def view(self, raw: bytes, kind: str, block: str, target: int | None = None, stride: int | None = None) -> int:
+        pad = -self.length % 4
+        if pad:
+            self.chunks.append(b"\0" * pad)
+            self.length += pad
+        self.gltf.bufferViews.append(g.BufferView(
+            buffer=0, byteOffset=self.length, byteLength=len(raw), byteStride=stride, target=target,
+        ))
+        self.chunks.append(raw)
+        self.length += len(raw)
+        self.blocks[block] = self.blocks.get(block, 0) + len(raw)
+        self.kinds[kind] += len(raw)
+        return len(self.gltf.bufferViews) - 1
+
+    def accessor(self, values: np.ndarray, component: int, normalized: bool, kind: str, block: str,
+                 target: int | None = None, minmax: bool = False) -> int:
+        """Append `values` ((n,), (n, k) or (n, k, k), already in the component dtype)."""
+        n = len(values)
+        if values.ndim == 3:
+            acc_type = _MAT_TYPES[values.shape[1]]
+            # numpy rows -> glTF columns
+            flat = values.transpose(0, 2, 1).reshape(n, -1)
+        else:
+            flat = values.reshape(n, -1)
+            acc_type = _VEC_TYPES[flat.shape[1]]
+        flat = np.ascontiguousarray(flat, dtype=flat.dtype.newbyteorder("<"))
+        raw = flat.view(np.uint8).reshape(n, -1)
+        stride = None
+        if kind == "vertex":
+            # Vertex attribute elements must start on 4-byte boundaries.
+            stride = -(-raw.shape[1] // 4) * 4
+            if stride != raw.shape[1]:
+                padded = np.zeros((n, stride), dtype=np.uint8)
+                padded[:, : raw.shape[1]] = raw
+                raw = padded
+        view = self.view(raw.tobytes(), kind, block, target=target, stride=stride)
+        accessor = g.Accessor(
+            bufferView=view, byteOffset=None, componentType=component, normalized=normalized or None,
+            count=n, type=acc_type,
+        )
+        if minmax:
+            accessor.min = flat.min(axis=0).astype(np.float64).tolist()
+            accessor.max = flat.max(axis=0).astype(np.float64).tolist()
+        self.gltf.accessors.append(accessor)
+        return len(self.gltf.accessors) - 1
+
+    def blob(self) -> bytes:
+        pad = -self.length % 4
+        return b"".join(self.chunks) + b"\0" * pad
+
+
+def _pack_glb(gltf: g.GLTF2, blob: bytes) -> tuple[bytes, int]:
+    # pygltflib's own GLB writer drops empty values everywhere, extras included ("unit": "",
+    # "warnings": []); this keeps extras and extensions exactly as given.
+    doc = _prune(g.gltf_asdict(gltf))
+    text = json.dumps(doc, allow_nan=False, separators=(",", ":")).encode("utf-8")
+    text += b" " * (-len(text) % 4)
+    chunks = [struct.pack("<I4s", len(text), b"JSON"), text]
+    if blob:
+        chunks += [struct.pack("<I4s", len(blob), b"BIN\0"), blob]
+    body = b"".join(chunks)
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body, len(text)
+
+
+def _prune(value):
+    """Drop None and empty values of pygltflib's dict form, leaving extras/extensions untouched."""
+    if isinstance(value, dict):
+        out = {}
+        for key, item in value.items():
+            if key not in ("extras", "extensions"):
+                item = _prune(item)
+            if item is None or (isinstance(item, (dict, list, str)) and not item):
+                continue
+            out[key] = item
+        return out
+    if isinstance(value, list):
+        return [_prune(item) for item in value]
+    return value
+
+
+def _check_finite(values: np.ndarray, what: str) -> None:
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"{what} has non-finite values (NaN or Inf)")
+
+
+def _finite_number(value, what: str) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{what} is not finite: {value}")
+    return value
+
+
+def _check_attribute_keys(asset: BakedAsset) -> None:
+    meshes = asset.scene.meshes
+    for i, j in asset.vertex_attributes:
+        if not (0 <= i < len(meshes) and 0 <= j < len(meshes[i].primitives)):
+            raise ValueError(f"vertex_attributes refer to mesh {i} primitive {j}, which the scene lacks")
+
+
+def _primitive_attributes(packer: _Packer, prim, attrs: tuple[VertexAttribute, ...], where: str) -> dict[str, int]:
+    n = len(prim.positions)
+    out: dict[str, int] = {}
+
+    positions = np.asarray(prim.positions, dtype=np.float64)
+    _check_finite(positions, f"{where}: POSITION")
+    out["POSITION"] = packer.accessor(positions.astype(np.float32), FLOAT, False, "vertex", "POSITION",
+                                      ARRAY_BUFFER, minmax=True)
+    if prim.normals is not None:
+        normals = np.asarray(prim.normals, dtype=np.float64)
+        _check_finite(normals, f"{where}: NORMAL")
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        if np.any(length == 0.0):
+            raise ValueError(f"{where}: NORMAL has zero-length vectors")
+        out["NORMAL"] = packer.accessor((normals / length).astype(np.float32), FLOAT, False, "vertex", "NORMAL",
+                                        ARRAY_BUFFER)
+    for t, uv in enumerate(prim.uvs):
+        name = f"TEXCOORD_{t}"
+        uv = np.asarray(uv, dtype=np.float64)
+        _check_finite(uv, f"{where}: {name}")
+        out[name] = packer.accessor(uv.astype(np.float32), FLOAT, False, "vertex", name, ARRAY_BUFFER)
+    if prim.colors is not None:
+        colors = np.asarray(prim.colors, dtype=np.float64)
+        _check_finite(colors, f"{where}: COLOR_0")
+        out["COLOR_0"] = packer.accessor(colors.astype(np.float32), FLOAT, False, "vertex", "COLOR_0", ARRAY_BUFFER)
+
+    for attr in attrs:
+        name = attr.gltf_name
+        if name in out:
+            raise ValueError(f"{where}: attribute {name} given twice")
+        data = np.asarray(attr.data, dtype=np.float64)
+        if data.ndim not in (1, 2) or len(data) != n or (data.ndim == 2 and not 1 <= data.shape[1] <= 4):
+            raise ValueError(f"{where}: attribute {name} has shape {data.shape}, expected ({n},) or ({n}, 1..4)")
+        _check_finite(data, f"{where}: attribute {name}")
+        if attr.encoding not in ENCODINGS:
+            raise ValueError(f"{where}: attribute {name} has unknown encoding {attr.encoding!r}")
+        component, _, normalized = ENCODINGS[attr.encoding]
+        try:
+            stored = quantize(data, attr.encoding)
+        except ValueError as exc:
+            raise ValueError(f"{where}: attribute {name}: {exc}") from None
+        out[name] = packer.accessor(stored, component, normalized, "vertex", name, ARRAY_BUFFER)
+    return out
+
+
+def _indices(packer: _Packer, faces: np.ndarray, n: int, where: str) -> int:
+    faces = np.asarray(faces)
+    if faces.size and (faces.min() < 0 or faces.max() >= n):
+        raise ValueError(f"{where}: face indices outside [0, {n})")
+    # 65535 is the primitive-restart value of uint16, so uint16 only below 65536 vertices.
+    if n < 65536:
+        return packer.accessor(faces.reshape(-1).astype(np.uint16), UNSIGNED_SHORT, False, "index", "indices",
+                               ELEMENT_ARRAY_BUFFER)
+    return packer.accessor(faces.reshape(-1).astype(np.uint32), UNSIGNED_INT, False, "index", "indices",
+                           ELEMENT_ARRAY_BUFFER)
+
+
+def _texture_info(ref: TextureRef | None) -> g.TextureInfo | None:
+    return None if ref is None else g.TextureInfo(index=ref.texture, texCoord=ref.tex_coord)
+
+
+def _material(src: SourceMaterial, scattering: ScatteringMaterial | None) -> tuple[g.Material, list[str]]:
+    pbr = g.PbrMetallicRoughness(
+        baseColorFactor=[float(c) for c in src.base_color_factor],
+        metallicFactor=float(src.metallic_factor),
+        roughnessFactor=float(src.roughness_factor),
+        baseColorTexture=_texture_info(src.base_color_texture),
+        metallicRoughnessTexture=_texture_info(src.metallic_roughness_texture),
+    )
+    material = g.Material(
+        name=src.name or None,
+        pbrMetallicRoughness=pbr,
+        normalTexture=None if src.normal_texture is None else g.NormalMaterialTexture(
+            index=src.normal_texture.texture, texCoord=src.normal_texture.tex_coord),
+        occlusionTexture=None if src.occlusion_texture is None else g.OcclusionTextureInfo(
+            index=src.occlusion_texture.texture, texCoord=src.occlusion_texture.tex_coord),
+        emissiveFactor=[float(c) for c in src.emissive_factor],
+        emissiveTexture=_texture_info(src.emissive_texture),
+        doubleSided=bool(src.double_sided),
+    )
+    if scattering is None:
+        if src.ior is None:
+            return material, []
+        material.extensions = {"KHR_materials_ior": {"ior": _finite_number(src.ior, f"material {src.name!r} ior")}}
+        return material, ["KHR_materials_ior"]
+
+    fb = scattering.fallback
+    what = f"material {src.name!r} fallback"
+    for field in ("base_color", "attenuation_color", "diffuse_transmission_color"):
+        _check_finite(np.asarray(getattr(fb, field), dtype=np.float64), f"{what} {field}")
+    if not (scattering.keep_base_color_texture and src.base_color_texture is not None):
+        pbr.baseColorFactor = [float(c) for c in fb.base_color] + [1.0]
+        pbr.baseColorTexture = None
+    material.doubleSided = False
+    volume: dict = {"thicknessFactor": _finite_number(fb.thickness_factor, f"{what} thickness_factor")}
+    if fb.thickness_texture is not None:
+        volume["thicknessTexture"] = {"index": fb.thickness_texture.texture, "texCoord": fb.thickness_texture.tex_coord}
+    # attenuationDistance defaults to +inf (no attenuation), which JSON cannot hold.
+    if not math.isinf(fb.attenuation_distance):
+        volume["attenuationDistance"] = _finite_number(fb.attenuation_distance, f"{what} attenuation_distance")
+    volume["attenuationColor"] = [float(c) for c in fb.attenuation_color]
+    material.extensions = {
+        "KHR_materials_volume": volume,
+        "KHR_materials_diffuse_transmission": {
+            "diffuseTransmissionFactor": _finite_number(fb.diffuse_transmission_factor,
+                                                        f"{what} diffuse_transmission_factor"),
+            "diffuseTransmissionColorFactor": [float(c) for c in fb.diffuse_transmission_color],
+        },
+        "KHR_materials_ior": {"ior": _finite_number(fb.ior, f"{what} ior")},
+    }
+    material.extras = {"sssbake": {
+        "schemaVersion": SCHEMA_VERSION,
+        "material": {**scattering.material.to_json(), "units": "1/mm"},
+        "sourceName": scattering.source_name,
+    }}
+    return material, list(TRANSLUCENT_EXTENSIONS)
+
+
+def _asset_extras(asset: BakedAsset, packer: _Packer) -> dict:
+    reserved = {"schemaVersion", "scaleMm", "attributes"}
+    clash = reserved & set(asset.extras)
+    if clash:
+        raise ValueError(f"BakedAsset.extras must not set {sorted(clash)}; the exporter writes them")
+    extras = {"schemaVersion": SCHEMA_VERSION, **_json_value(asset.extras, packer, "extras")}
+
+    meshes = asset.scene.meshes
+    names = [m.name for m in meshes]
+    scale = {}
+    for i, value in sorted(asset.scale_mm.items()):
+        # Mesh names need not be unique; a repeated name is qualified by the mesh index.
+        key = names[i] if names.count(names[i]) == 1 else f"{names[i]}#{i}"
+        scale[key] = _finite_number(value, f"scale_mm of mesh {names[i]!r}")
+    extras["scaleMm"] = scale
+
+    described: dict[str, dict] = {}
+    for _, attrs in sorted(asset.vertex_attributes.items()):
+        for attr in attrs:
+            entry = {"name": attr.gltf_name, "key": attr.key, "unit": attr.unit, "encoding": attr.encoding,
+                     "description": attr.description}
+            if described.setdefault(attr.gltf_name, entry) != entry:
+                raise ValueError(f"attribute {attr.gltf_name} is described differently on different primitives")
+    extras["attributes"] = list(described.values())
+    return extras
+
+
+def _json_value(value, packer: _Packer, where: str):
+    """`value` as JSON; numpy arrays become table accessors referenced as ``{"accessor": i}``."""
+    if isinstance(value, dict):
+        return {str(k): _json_value(v, packer, f"{where}.{k}") for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_value(v, packer, f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, np.ndarray) and value.ndim > 0:
+        return {"accessor": _table(value, packer, where)}
+    if isinstance(value, (np.generic, np.ndarray)):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{where} is not finite: {value}")
+    return value
+
+
+def _table(array: np.ndarray, packer: _Packer, where: str) -> int:
+    """Write a table: float -> FLOAT, non-negative integers -> UNSIGNED_INT.
+
+    Shapes (n,), (n, k) with k <= 4, and (n, k, k) with k in 2..4 (MATk) are accepted.
+    """
+    shape_ok = (
+        array.ndim == 1
+        or (array.ndim == 2 and 1 <= array.shape[1] <= 4)
+        or (array.ndim == 3 and array.shape[1] == array.shape[2] and array.shape[1] in _MAT_TYPES)
+    )
+    if not shape_ok or len(array) == 0:
+        raise ValueError(f"{where}: a table must have shape (n,), (n, 1..4) or (n, k, k) with k in 2..4 "
+                         f"and n > 0, got {array.shape}")
+    if array.dtype.kind == "f":
+        _check_finite(array, where)
+        return packer.accessor(array.astype(np.float32), FLOAT, False, "table", "tables")
+    if array.dtype.kind in "iu" and (array.min() >= 0 and array.max() <= np.iinfo(np.uint32).max):
+        return packer.accessor(array.astype(np.uint32), UNSIGNED_INT, False, "table", "tables")
+    raise ValueError(f"{where}: a table must hold floats or integers in [0, 2^32), got dtype {array.dtype}")

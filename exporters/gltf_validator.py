@@ -1,0 +1,199 @@
+"""The Khronos glTF-Validator (npm package ``gltf-validator``), run through node in a subprocess.
+
+The package is looked for in, in order: the folder named by ``SSSBAKE_GLTF_VALIDATOR`` (a
+``node_modules`` folder), the repository's and the working directory's ``node_modules``, and
+``npm root -g``. Install it with ``npm install gltf-validator`` (the repository's
+``package.json`` pins it; ``npm ci`` there installs the pinned version).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
+
+ENV_VAR = "SSSBAKE_GLTF_VALIDATOR"
+_SCRIPT = Path(__file__).with_name("gltf_validate.mjs")
+SEVERITIES = ("Error", "Warning", "Information", "Hint")
+_INSTALL = "install it with `npm install gltf-validator` in the repository (or set " + ENV_VAR + \
+    " to a node_modules folder that holds it)"
+
+
+class ValidatorUnavailable(RuntimeError):
+    """node or the gltf-validator package is missing."""
+
+
+@dataclass(frozen=True)
+class ValidationMessage:
+    """One issue the validator reported.
+
+    Attributes
+    ----------
+    code : str
+        e.g. ``"UNSUPPORTED_EXTENSION"``.
+    severity : str
+        ``"Error"``, ``"Warning"``, ``"Information"`` or ``"Hint"``.
+    pointer : str
+        JSON pointer into the asset, ``""`` when the issue has none.
+    message : str
+    """
+
+    code: str
+    severity: str
+    pointer: str
+    message: str
+
+
+@dataclass(frozen=True)
+class ValidationReport:
+    """The validator's verdict on one file.
+
+    Attributes
+    ----------
+    uri : str
+        The file validated (``"<bytes>"`` for in-memory data).
+    num_errors, num_warnings, num_infos, num_hints : int
+    messages : tuple of ValidationMessage
+    validator_version : str
+    """
+
+    uri: str
+    num_errors: int
+    num_warnings: int
+    num_infos: int
+    num_hints: int
+    messages: tuple[ValidationMessage, ...] = field(default=())
+    validator_version: str = ""
+
+    @property
+    def ok(self) -> bool:
+        """No errors and no warnings (infos and hints are fine)."""
+        return self.num_errors == 0 and self.num_warnings == 0
+
+    def codes(self, severity: str | None = None) -> list[str]:
+        """Issue codes, optionally only those of one severity (``"Error"``, ...)."""
+        return [m.code for m in self.messages if severity is None or m.severity == severity]
+
+    def to_json(self) -> dict:
+        """The report in the validator's own key names, for ``.report.json``."""
+        return {
+            "uri": self.uri,
+            "validatorVersion": self.validator_version,
+            "numErrors": self.num_errors,
+            "numWarnings": self.num_warnings,
+            "numInfos": self.num_infos,
+            "numHints": self.num_hints,
+            "messages": [
+                {"code": m.code, "severity": m.severity, "pointer": m.pointer, "message": m.message}
+                for m in self.messages
+            ],
+        }
+
+
+def validate_glb(path_or_bytes: str | os.PathLike | bytes) -> ValidationReport:
+    """Validate one .glb/.gltf file, or GLB/glTF bytes.
+
+    Raises
+    ------
+    ValidatorUnavailable
+        node or the gltf-validator package cannot be found.
+    RuntimeError
+        The validator could not read the input at all (not glTF, not GLB).
+    """
+    return validate_many([path_or_bytes])[0]
+
+
+def validate_many(items: Sequence[str | os.PathLike | bytes], timeout: float = 300.0) -> list[ValidationReport]:
+    """Validate several files and/or byte strings with one node process (node starts slowly)."""
+    modules = find_validator()
+    with tempfile.TemporaryDirectory(prefix="sssbake-validate-") as tmp:
+        paths, uris = [], []
+        for k, item in enumerate(items):
+            if isinstance(item, (bytes, bytearray, memoryview)):
+                p = Path(tmp, f"{k}.glb" if bytes(item[:4]) == b"glTF" else f"{k}.gltf")
+                p.write_bytes(item)
+                paths.append(str(p))
+                uris.append("<bytes>")
+            else:
+                paths.append(str(Path(item).resolve()))
+                uris.append(str(item))
+        if not paths:
+            return []
+        proc = subprocess.run(
+            [_node(), str(_SCRIPT), str(modules), *paths],
+            capture_output=True, text=True, timeout=timeout,
+        )
+    if proc.returncode != 0:
+        raise RuntimeError(f"gltf-validator failed (exit {proc.returncode}): {proc.stderr.strip()}")
+    return [_report(raw, uri) for raw, uri in zip(json.loads(proc.stdout), uris)]
+
+
+def find_validator() -> Path:
+    """The ``node_modules`` folder that holds ``gltf-validator``.
+
+    Raises
+    ------
+    ValidatorUnavailable
+    """
+    candidates = []
+    env = os.environ.get(ENV_VAR)
+    if env:
+        candidates.append(Path(env))
+    candidates += [Path(__file__).resolve().parents[1] / "node_modules", Path.cwd() / "node_modules"]
+    global_root = _npm_root_global()
+    if global_root:
+        candidates.append(global_root)
+    for folder in candidates:
+        if (folder / "gltf-validator" / "package.json").is_file():
+            return folder
+    looked = ", ".join(str(c) for c in candidates)
+    raise ValidatorUnavailable(f"the npm package gltf-validator was not found (looked in {looked}); {_INSTALL}")
+
+
+def _node() -> str:
+    node = shutil.which("node")
+    if node is None:
+        raise ValidatorUnavailable(f"node (Node.js) is not installed: install Node.js and npm, then {_INSTALL}")
+    return node
+
+
+@cache
+def _npm_root_global() -> Path | None:
+    npm = shutil.which("npm")
+    if npm is None:
+        return None
+    try:
+        out = subprocess.run([npm, "root", "-g"], capture_output=True, text=True, timeout=30, check=True)
+    except (subprocess.SubprocessError, OSError):
+        return None
+    return Path(out.stdout.strip()) if out.stdout.strip() else None
+
+
+def _report(raw: dict, uri: str) -> ValidationReport:
+    if "error" in raw:
+        raise RuntimeError(f"gltf-validator could not validate {uri}: {raw['error']}")
+    issues = raw["issues"]
+    messages = tuple(
+        ValidationMessage(
+            code=m["code"],
+            severity=SEVERITIES[m["severity"]],
+            pointer=m.get("pointer", ""),
+            message=m["message"],
+        )
+        for m in issues["messages"]
+    )
+    return ValidationReport(
+        uri=uri,
+        num_errors=issues["numErrors"],
+        num_warnings=issues["numWarnings"],
+        num_infos=issues["numInfos"],
+        num_hints=issues["numHints"],
+        messages=messages,
+        validator_version=raw.get("validatorVersion", ""),
+    )

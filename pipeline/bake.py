@@ -1,0 +1,307 @@
+"""Bakes one asset: load → clean → assign materials → atlas → thickness → export → validate.
+
+Only the stages a scene needs run: a scene whose materials are all opaque gets no atlas and no
+thickness; simplification runs only for techniques that need reference points (none yet).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from dataclasses import dataclass, replace
+from importlib.metadata import version
+from pathlib import Path
+
+import numpy as np
+from PIL import Image as PILImage
+
+from ..exporters.atomic import atomic_path
+from ..exporters.gltf import write_glb
+from ..exporters.usd import write_usdc
+from .assign import assign_materials
+from .atlas import compute_atlas
+from .baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
+from .cache import StageCache, file_digest, stage_key
+from .clean import CleanScene, clean_scene
+from .fallback import make_fallback
+from .load import AssetError, load_scene
+from .materials import Material
+from .options import BakeOptions
+from .scene import Image, Mesh, Scene, SourceMaterial, Texture, TextureRef
+from .stages import StageRunner
+from .thickness import bake_thickness
+from .thickness_map import bake_thickness_map
+
+# Bump a stage's version when its output for the same input changes.
+STAGE_VERSIONS = {"load": 1, "clean": 1, "atlas": 1, "thickness": 1, "thickness_map": 1}
+LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
+
+
+@dataclass(frozen=True)
+class BakeResult:
+    """What `bake_asset` produced: the report (also written next to the outputs) and the paths."""
+
+    report: dict
+    outputs: tuple[Path, ...]
+    up_to_date: bool = False
+
+
+def resolve_scale_mm(scene: Scene, options: BakeOptions) -> tuple[float, str]:
+    """Millimetres per file unit and where that number came from; refuses to guess."""
+    if options.scale_mm is not None:
+        return float(options.scale_mm), "given"
+    if scene.meters_per_unit is not None:
+        return 1000.0 * scene.meters_per_unit, "declared by the file"
+    raise AssetError(
+        scene.source,
+        "no scale: this format carries no unit; pass --scale-mm (millimetres per file unit) or set scale_mm in the config",
+    )
+
+
+def _instance_scale(scene: Scene, mesh_index: int, warnings: list[str]) -> float:
+    """Uniform world scale of the nodes instancing a mesh (1 when it is not instanced)."""
+    worlds = scene.mesh_instances().get(mesh_index, [])
+    scales = [abs(float(np.linalg.det(w[:3, :3]))) ** (1.0 / 3.0) for w in worlds]
+    if not scales:
+        return 1.0
+    if max(scales) > min(scales) * (1 + 1e-6):
+        warnings.append(
+            f"mesh {scene.meshes[mesh_index].name!r} is instanced at scales {min(scales):.4g}..{max(scales):.4g}; "
+            "baked with the first instance's scale"
+        )
+    return scales[0]
+
+
+def _size_report(name: str, diag_mm: float, material: Material, warnings: list[str]) -> dict:
+    mfp = diag_mm / material.mean_free_path_mm
+    diff = diag_mm * material.sigma_tr
+    if mfp.min() < 1.0:
+        warnings.append(
+            f"mesh {name!r} with {material.name!r} spans only {mfp.min():.3g} mean free paths: "
+            "the diffusion model does not hold; is scale_mm right?"
+        )
+    if diff.min() > 1e4:
+        warnings.append(
+            f"mesh {name!r} with {material.name!r} spans {diff.min():.3g} diffusion lengths: "
+            "scattering will be invisible; is scale_mm right?"
+        )
+    return {
+        "material": material.name,
+        "bbox_diagonal_mm": diag_mm,
+        "size_in_mean_free_paths": mfp.tolist(),
+        "size_in_diffusion_lengths": diff.tolist(),
+    }
+
+
+def _split_shared_materials(scene: Scene, translucent: set[int]) -> tuple[Scene, list[int]]:
+    """Give every mesh its own copy of each scattering material it uses.
+
+    A material's thickness texture lives in its mesh's atlas, so two meshes cannot share one.
+    Returns the new scene and, per material, the index of the material it copies.
+    """
+    materials = list(scene.materials)
+    origin = list(range(len(materials)))
+    owner: dict[int, int] = {}
+    meshes = []
+    for mi, mesh in enumerate(scene.meshes):
+        local: dict[int, int] = {}
+        prims = []
+        for p in mesh.primitives:
+            m = p.material
+            if m in translucent:
+                if owner.setdefault(m, mi) != mi:
+                    if m not in local:
+                        local[m] = len(materials)
+                        origin.append(m)
+                        materials.append(replace(scene.materials[m], name=f"{scene.materials[m].name}.{mesh.name}"))
+                    m = local[m]
+            prims.append(replace(p, material=m) if m != p.material else p)
+        meshes.append(Mesh(mesh.name, tuple(prims)))
+    return replace(scene, meshes=tuple(meshes), materials=tuple(materials)), origin
+
+
+def _png_gray(values: np.ndarray) -> bytes:
+    """8-bit greyscale PNG of `values` in [0, 1] (H, W): G reads the grey level in every sampler."""
+    img = PILImage.fromarray(np.round(np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8), mode="L")
+    buf = io.BytesIO()
+    img.save(buf, format="PNG", optimize=True)
+    return buf.getvalue()
+
+
+def bake_asset(
+    path: Path, options: BakeOptions, out_base: Path, cache: StageCache, *, trace_memory: bool = False
+) -> BakeResult:
+    """Bake the asset at `path` into ``out_base.glb``, ``.usdc`` and ``.report.json``.
+
+    `trace_memory` records each stage's peak traced allocation (slower; for benchmarks).
+
+    Raises
+    ------
+    AssetError, MaterialError, ValueError
+        With a one-line message; nothing is left at the output paths.
+    """
+    t_start = time.perf_counter()
+    path = Path(path)
+    outputs = (out_base.with_suffix(".glb"), out_base.with_suffix(".usdc"), out_base.with_suffix(".report.json"))
+    digest = file_digest(path)
+    job_key = stage_key(digest, "bake", 1, {"options": options.to_json(), "stages": STAGE_VERSIONS, "sssbake": version("sssbake")})
+    if all(p.exists() for p in outputs):
+        try:
+            old = json.loads(outputs[2].read_text())
+        except (OSError, ValueError):
+            old = {}
+        if old.get("job_key") == job_key:
+            return BakeResult(old, outputs, up_to_date=True)
+
+    runner = StageRunner(cache, trace_memory)
+    warnings: list[str] = []
+    scene, k_load = runner.run("load", STAGE_VERSIONS["load"], digest, {}, load_scene, str(path))
+    clean, k_clean = runner.run("clean", STAGE_VERSIONS["clean"], k_load, {}, clean_scene, scene)
+    clean: CleanScene
+    warnings.extend(clean.warnings)
+    mm_per_unit, scale_source = resolve_scale_mm(clean.scene, options)
+    assignment = assign_materials(clean.scene, options, mm_per_unit)
+    translucent = {i for i, m in assignment.materials.items() if m is not None}
+    scene, origin = _split_shared_materials(assignment.scene, translucent)
+    material_of = {i: assignment.materials.get(o) for i, o in enumerate(origin)}
+    runner.skip("simplify", "no technique that needs reference points was requested")
+
+    meshes = list(scene.meshes)
+    images, textures = list(scene.images), list(scene.textures)
+    attributes: dict[tuple[int, int], tuple[VertexAttribute, ...]] = {}
+    scattering: dict[int, ScatteringMaterial] = {}
+    scale_mm: dict[int, float] = {}
+    sizes: dict[str, list] = {}
+    for mi, mesh in enumerate(scene.meshes):
+        mesh_mm = mm_per_unit * _instance_scale(scene, mi, warnings)
+        scale_mm[mi] = mesh_mm
+        surface = clean.surfaces[mi]
+        diag_mm = float(np.linalg.norm(np.ptp(surface.positions, axis=0))) * mesh_mm
+        mats = sorted({p.material for p in mesh.primitives if material_of.get(p.material) is not None})
+        sizes[mesh.name] = [_size_report(mesh.name, diag_mm, material_of[m], warnings) for m in mats]
+        if not mats:
+            continue
+        mesh_key = stage_key(k_clean, "mesh", 0, {"mesh": mi})
+        parts = [(p.positions, p.faces) for p in mesh.primitives]
+        atlas, _ = runner.run(
+            "atlas", STAGE_VERSIONS["atlas"], mesh_key,
+            {"resolution": options.atlas_resolution, "padding": options.atlas_padding},
+            compute_atlas, parts, options.atlas_resolution, options.atlas_padding,
+        )
+        cap = float(np.linalg.norm(np.ptp(surface.positions, axis=0)))
+        thick, _ = runner.run(
+            "thickness", STAGE_VERSIONS["thickness"], mesh_key, {"rays": options.thickness_rays},
+            lambda: bake_thickness(surface.positions, surface.faces, surface.normals, cap=cap, rays=options.thickness_rays),
+        )
+        if not thick.hit.all():
+            warnings.append(
+                f"mesh {mesh.name!r}: {int((~thick.hit).sum())} of {len(thick.hit)} thickness rays left the "
+                f"mesh (open surface); they were capped at the bounding-box diagonal ({cap * mesh_mm:.4g} mm)"
+            )
+        tmap, _ = runner.run(
+            "thickness_map", STAGE_VERSIONS["thickness_map"], mesh_key,
+            {"resolution": options.atlas_resolution, "padding": options.atlas_padding, "rays": options.thickness_rays},
+            bake_thickness_map, atlas, [p.normals for p in mesh.primitives], surface, cap, options.thickness_rays,
+        )
+        tmax = max(float(tmap.image.max()), float(thick.thickness.max()), 1e-30)
+        images.append(Image(f"{mesh.name}_thickness", "image/png", _png_gray(tmap.image / tmax)))
+        textures.append(Texture(len(images) - 1, LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE, CLAMP_TO_EDGE))
+        uv_set = max(len(p.uvs) for p in mesh.primitives)
+        prims = []
+        for pi, (p, part) in enumerate(zip(mesh.primitives, atlas.parts)):
+            vm = part.vmapping
+            uvs = tuple(uv[vm] for uv in p.uvs)
+            uvs = uvs + (np.zeros((len(vm), 2)),) * (uv_set - len(uvs)) + (part.uvs,)
+            prims.append(replace(
+                p, positions=p.positions[vm], faces=part.faces, normals=p.normals[vm], uvs=uvs,
+                colors=p.colors[vm] if p.colors is not None else None,
+            ))
+            if material_of.get(p.material) is not None:
+                t_mm = thick.thickness[surface.weld[pi]][vm] * mesh_mm
+                attributes[(mi, pi)] = (
+                    VertexAttribute("thickness", t_mm, "mm", "float32",
+                                    "distance through the object along the inward normal"),
+                )
+        meshes[mi] = Mesh(mesh.name, tuple(prims))
+        ref = TextureRef(len(textures) - 1, uv_set)
+        for m in mats:
+            fb = make_fallback(material_of[m], mesh_mm, thick.thickness * mesh_mm, ref, tmax)
+            src: SourceMaterial = scene.materials[m]
+            scattering[m] = ScatteringMaterial(material_of[m], fb, src.name)
+
+    baked_scene = replace(scene, meshes=tuple(meshes), images=tuple(images), textures=tuple(textures))
+    extras = {
+        "scaleMmPerUnit": mm_per_unit,
+        "scaleSource": scale_source,
+        "thickness": {"unit": "mm", "raysPerSample": options.thickness_rays, "missCap": "bounding-box diagonal"},
+    }
+    asset = BakedAsset(baked_scene, attributes, scattering, scale_mm, extras)
+    written: list[Path] = []
+    try:
+        with runner.timed("export_gltf"), atomic_path(outputs[0]) as tmp:
+            glb_summary = write_glb(asset, tmp)
+        written.append(outputs[0])
+        with runner.timed("export_usd"), atomic_path(outputs[1]) as tmp:
+            usd_summary = write_usdc(asset, tmp)
+        written.append(outputs[1])
+        validation = _validate(runner, outputs, options, warnings)
+        report = {
+            "asset": str(path),
+            "job_key": job_key,
+            "schema_version": SCHEMA_VERSION,
+            "sssbake": version("sssbake"),
+            "outputs": [str(p) for p in outputs],
+            "scale_mm_per_unit": mm_per_unit,
+            "scale_source": scale_source,
+            "vertices": sum(len(p.positions) for m in baked_scene.meshes for p in m.primitives),
+            "faces": sum(len(p.faces) for m in baked_scene.meshes for p in m.primitives),
+            "materials": {
+                scene.materials[i].name: (
+                    {"scattering": m.to_json() if m is not None else None, "reason": assignment.reasons.get(origin[i], "")}
+                )
+                for i, m in material_of.items()
+                if i in {p.material for mesh in scene.meshes for p in mesh.primitives}
+            },
+            "sizes": sizes,
+            "bytes": {"glb": glb_summary, "usdc": usd_summary},
+            "validation": validation,
+            "stages": runner.to_json(),
+            "seconds": round(time.perf_counter() - t_start, 4),
+            "warnings": warnings,
+        }
+        with atomic_path(outputs[2]) as tmp:
+            Path(tmp).write_text(json.dumps(report, indent=1, default=_json_default))
+    except BaseException:
+        for p in written:
+            p.unlink(missing_ok=True)
+        raise
+    return BakeResult(report, outputs)
+
+
+def _validate(runner: StageRunner, outputs, options: BakeOptions, warnings: list[str]) -> dict:
+    if not options.validate:
+        runner.skip("validate", "turned off (--no-validate)")
+        return {}
+    from ..exporters.gltf_validator import ValidatorUnavailable, validate_glb
+    from ..exporters.usd_validator import validate_usd
+
+    out = {}
+    with runner.timed("validate"):
+        try:
+            g = validate_glb(outputs[0])
+            out["gltf"] = {"errors": g.num_errors, "warnings": g.num_warnings, "infos": g.num_infos,
+                           "messages": [m.to_json() for m in g.messages if m.severity <= 1]}
+        except ValidatorUnavailable as e:
+            warnings.append(f"glTF validation skipped: {e}")
+        u = validate_usd(outputs[1])
+        out["usd"] = {"errors": len(u.errors), "warnings": len(u.warnings), "messages": list(u.errors)}
+    return out
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    raise TypeError(f"not JSON-serialisable: {type(o).__name__}")

@@ -1,0 +1,118 @@
+"""What the exporters consume: a cleaned scene plus the scattering data baked for it.
+
+Exporters depend on this data only, never on the stages that made it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .materials import Material
+from .scene import Scene, TextureRef
+
+SCHEMA_VERSION = "1.0.0"
+
+
+@dataclass(frozen=True, eq=False)
+class VertexAttribute:
+    """A per-vertex array of sssbake data.
+
+    The key names the data in every format: glTF attribute ``"_" + key.upper()`` with ``:``
+    turned into ``_`` (``thickness`` → ``_THICKNESS``), USD primvar ``primvars:sss:<key>``.
+
+    Attributes
+    ----------
+    key : str
+    data : (n,) or (n, k) float64
+        Values in `unit`; finite.
+    unit : str
+        e.g. ``"mm"``; ``""`` for unitless.
+    encoding : str
+        How glTF stores it: ``"float32"``, or a normalized type ``"snorm8"``, ``"snorm16"``,
+        ``"unorm8"``, ``"unorm16"`` (data must then lie in [-1, 1] or [0, 1]). USD stores float32.
+    description : str
+    """
+
+    key: str
+    data: np.ndarray
+    unit: str = ""
+    encoding: str = "float32"
+    description: str = ""
+
+    @property
+    def gltf_name(self) -> str:
+        return "_" + self.key.upper().replace(":", "_")
+
+    @property
+    def usd_name(self) -> str:
+        return "primvars:sss:" + self.key
+
+
+@dataclass(frozen=True)
+class Fallback:
+    """Standard-extension parameters that make ordinary viewers look plausible.
+
+    All lengths are in the mesh's file units (what glTF's KHR_materials_volume expects).
+
+    Attributes
+    ----------
+    base_color : (3,) float
+        Linear RGB total diffuse reflectance R_d of the material.
+    thickness_texture : TextureRef or None
+        Texture whose G channel holds thickness / `thickness_factor` (atlas TEXCOORD set).
+    thickness_factor : float
+        Largest baked thickness, file units.
+    attenuation_color : (3,) float in (0, 1]
+    attenuation_distance : float
+        File units; light travelling this far is tinted by `attenuation_color`.
+    diffuse_transmission_factor : float in [0, 1]
+    diffuse_transmission_color : (3,) float in [0, 1]
+    ior : float
+    """
+
+    base_color: tuple[float, float, float]
+    thickness_texture: TextureRef | None
+    thickness_factor: float
+    attenuation_color: tuple[float, float, float]
+    attenuation_distance: float
+    diffuse_transmission_factor: float
+    diffuse_transmission_color: tuple[float, float, float]
+    ior: float
+
+
+@dataclass(frozen=True)
+class ScatteringMaterial:
+    """The scattering parameters assigned to one material of the output scene."""
+
+    material: Material
+    fallback: Fallback
+    source_name: str
+    keep_base_color_texture: bool = True
+
+
+@dataclass(frozen=True, eq=False)
+class BakedAsset:
+    """A scene ready for export.
+
+    Attributes
+    ----------
+    scene : Scene
+        Cleaned geometry. Where an atlas was made, primitives are already re-indexed through it
+        and the atlas UVs are the last TEXCOORD set; the thickness images and textures are appended.
+    vertex_attributes : dict
+        ``(mesh index, primitive index) -> tuple[VertexAttribute, ...]``.
+    scattering : dict
+        Scene material index -> ScatteringMaterial; materials not listed are opaque.
+    scale_mm : dict
+        Mesh index -> millimetres per file unit in world space (node scale included).
+    extras : dict
+        Asset-level JSON written under ``extras.sssbake`` (schema version added by exporters).
+    """
+
+    scene: Scene
+    vertex_attributes: dict[tuple[int, int], tuple[VertexAttribute, ...]] = field(default_factory=dict)
+    scattering: dict[int, ScatteringMaterial] = field(default_factory=dict)
+    scale_mm: dict[int, float] = field(default_factory=dict)
+    extras: dict = field(default_factory=dict)

@@ -1,0 +1,200 @@
+"""Cleaning stage: drop degenerate and unused data, fill missing normals, and build the welded
+surface every scattering computation runs on.
+
+Render vertices (split at UV and normal seams) are kept for export; the welded `Surface` joins
+coincident positions so adjacency, areas and normals see one connected surface.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .load import AssetError
+from .scene import Mesh, Primitive, Scene
+
+# Positions closer than this fraction of the bounding-box diagonal are the same point.
+WELD_TOLERANCE = 1e-7
+# Triangles with area below this fraction of diagonal² carry no surface.
+DEGENERATE_AREA = 1e-14
+
+
+@dataclass(frozen=True, eq=False)
+class Surface:
+    """The welded surface of one Mesh (all its primitives), in the mesh's local frame, file units.
+
+    Attributes
+    ----------
+    positions : (w, 3) float64
+    faces : (f, 3) int64
+    normals : (w, 3) float64
+        Area-weighted unit vertex normals.
+    vertex_areas : (w,) float64
+        A third of the incident triangle areas, file units².
+    weld : tuple of (n_p,) int64
+        For each primitive, the welded vertex of each of its (cleaned) render vertices.
+    """
+
+    positions: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    vertex_areas: np.ndarray
+    weld: tuple[np.ndarray, ...]
+
+    @property
+    def area(self) -> float:
+        return float(self.vertex_areas.sum())
+
+
+@dataclass(frozen=True, eq=False)
+class CleanScene:
+    """Output of the cleaning stage.
+
+    Attributes
+    ----------
+    scene : Scene
+        Same structure as the input; each primitive without degenerate faces or unused vertices,
+        with unit normals.
+    surfaces : tuple of Surface
+        One per mesh, same order as ``scene.meshes``.
+    warnings : tuple of str
+    """
+
+    scene: Scene
+    surfaces: tuple[Surface, ...]
+    warnings: tuple[str, ...]
+
+
+def triangle_areas(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) areas of the triangles `faces` (m, 3) over `positions` (n, 3)."""
+    p = positions[faces]
+    return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+
+def vertex_areas(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(n,) per-vertex areas: a third of the incident triangle areas (they sum to the mesh area)."""
+    third = np.repeat(triangle_areas(positions, faces) / 3.0, 3)
+    return np.bincount(faces.ravel(), weights=third, minlength=len(positions))
+
+
+def area_weighted_normals(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(n, 3) unit vertex normals, the sum of incident face normals weighted by face area.
+
+    Vertices with no incident area get +Z rather than NaN.
+    """
+    p = positions[faces]
+    fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])  # length = 2 × area: area weighting for free
+    acc = np.zeros_like(positions)
+    for k in range(3):
+        np.add.at(acc, faces[:, k], fn)
+    return _normalise(acc)
+
+
+def _normalise(v: np.ndarray) -> np.ndarray:
+    length = np.linalg.norm(v, axis=1, keepdims=True)
+    ok = length[:, 0] > 0
+    out = np.tile([0.0, 0.0, 1.0], (len(v), 1))
+    out[ok] = v[ok] / length[ok]
+    return out
+
+
+def weld_positions(positions: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Join positions that agree to `tolerance` (absolute, file units).
+
+    Returns
+    -------
+    welded : (w, 3) float64
+        The first position of each group.
+    index : (n,) int64
+        Welded index of each input position.
+    """
+    if tolerance > 0:
+        keys = np.round(positions / tolerance).astype(np.int64)
+    else:
+        keys = positions
+    _, first, index = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return positions[first], index.reshape(-1).astype(np.int64)
+
+
+def _clean_primitive(prim: Primitive, tol: float, min_area: float) -> tuple[Primitive, int]:
+    """Drop degenerate faces and the vertices nothing references; fill missing normals."""
+    _, welded_index = weld_positions(prim.positions, tol)
+    f = prim.faces
+    wf = welded_index[f]
+    distinct = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2])
+    keep = distinct & (triangle_areas(prim.positions, f) > min_area)
+    dropped = int((~keep).sum())
+    f = f[keep]
+    used = np.unique(f)
+    remap = np.full(len(prim.positions), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    faces = remap[f]
+    positions = prim.positions[used]
+    normals = prim.normals[used] if prim.normals is not None else None
+    if normals is not None:
+        bad = ~np.all(np.isfinite(normals), axis=1) | (np.linalg.norm(normals, axis=1) < 1e-12)
+        normals = None if bad.any() else _normalise(normals)
+    cleaned = replace(
+        prim,
+        positions=positions,
+        faces=faces,
+        normals=normals,
+        uvs=tuple(uv[used] for uv in prim.uvs),
+        colors=prim.colors[used] if prim.colors is not None else None,
+    )
+    return cleaned, dropped
+
+
+def _surface(prims: list[Primitive], tol: float) -> Surface:
+    offsets = np.cumsum([0] + [len(p.positions) for p in prims])
+    allpos = np.concatenate([p.positions for p in prims])
+    allfaces = np.concatenate([p.faces + o for p, o in zip(prims, offsets)])
+    welded, index = weld_positions(allpos, tol)
+    faces = index[allfaces]
+    return Surface(
+        positions=welded,
+        faces=faces,
+        normals=area_weighted_normals(welded, faces),
+        vertex_areas=vertex_areas(welded, faces),
+        weld=tuple(index[offsets[i] : offsets[i + 1]] for i in range(len(prims))),
+    )
+
+
+def clean_scene(scene: Scene) -> CleanScene:
+    """Clean every mesh of `scene` and build its welded surface.
+
+    Raises
+    ------
+    AssetError
+        When no triangle with area survives (the asset has no surface to scatter on).
+    """
+    warnings: list[str] = []
+    meshes: list[Mesh] = []
+    surfaces: list[Surface] = []
+    kept: dict[int, int] = {}
+    for mi, mesh in enumerate(scene.meshes):
+        allpos = np.concatenate([p.positions for p in mesh.primitives]) if mesh.primitives else np.zeros((0, 3))
+        diag = float(np.linalg.norm(np.ptp(allpos, axis=0))) if len(allpos) else 0.0
+        tol, min_area = WELD_TOLERANCE * diag, DEGENERATE_AREA * diag * diag
+        prims = []
+        for prim in mesh.primitives:
+            cleaned, dropped = _clean_primitive(prim, tol, min_area)
+            if dropped:
+                warnings.append(f"mesh {mesh.name!r}: dropped {dropped} degenerate triangles")
+            if len(cleaned.faces):
+                prims.append(cleaned)
+        if not prims:
+            warnings.append(f"mesh {mesh.name!r}: no triangle with area; mesh left out")
+            continue
+        surf = _surface(prims, tol)
+        prims = [
+            p if p.normals is not None else replace(p, normals=surf.normals[w]) for p, w in zip(prims, surf.weld)
+        ]
+        kept[mi] = len(meshes)
+        meshes.append(Mesh(mesh.name, tuple(prims)))
+        surfaces.append(surf)
+    if not meshes:
+        raise AssetError(scene.source, "no triangle with non-zero area")
+    nodes = tuple(replace(n, mesh=kept.get(n.mesh)) if n.mesh is not None else n for n in scene.nodes)
+    return CleanScene(replace(scene, meshes=tuple(meshes), nodes=nodes), tuple(surfaces), tuple(warnings))

@@ -1,0 +1,123 @@
+"""The `sssbake` command line: bake, inspect, presets."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .config import EMPTY_CONFIG, ConfigError, load_config
+from .options import BAKE_DEFAULTS
+
+
+def _bake(args) -> int:
+    from .batch import run_batch
+
+    try:
+        config = load_config(args.config) if args.config else EMPTY_CONFIG
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    overrides = {}
+    if args.material is not None:
+        overrides["material"] = args.material
+    if args.scale_mm is not None:
+        overrides["scale_mm"] = args.scale_mm
+    if args.atlas_resolution is not None:
+        overrides["atlas_resolution"] = args.atlas_resolution
+    if args.no_validate:
+        overrides["validate"] = False
+    out = Path(args.out)
+    cache = None if args.no_cache else (args.cache_dir or str(out / ".sssbake-cache"))
+    try:
+        summary = run_batch(
+            [Path(p) for p in args.paths], out, config, overrides, jobs=args.jobs, cache_dir=cache,
+            progress=not args.quiet,
+        )
+    except (FileNotFoundError, ConfigError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    for r in summary["assets"]:
+        if r["status"] == "failed":
+            print(f"error: {r['error']}", file=sys.stderr)
+        elif not args.quiet:
+            print(f"{r['status']:>10}  {r['asset']}  ({r['seconds']:.2f} s, {r.get('warnings', 0)} warnings)")
+    print(
+        f"{summary['ok']} baked, {summary['failed']} failed in {summary['seconds']:.1f} s; "
+        f"summary in {out / 'batch.json'}",
+        file=sys.stderr if args.quiet else sys.stdout,
+    )
+    return 1 if summary["failed"] else 0
+
+
+def _inspect(args) -> int:
+    path = Path(args.file)
+    suffix = path.suffix.lower()
+    try:
+        if suffix in (".glb", ".gltf"):
+            from ..exporters.inspect_gltf import inspect_glb
+
+            info = inspect_glb(path)
+        elif suffix in (".usdc", ".usda", ".usd"):
+            from ..exporters.inspect_usd import inspect_usdc
+
+            info = inspect_usdc(path)
+        else:
+            print(f"error: {path}: inspect reads .glb/.gltf/.usd/.usda/.usdc files", file=sys.stderr)
+            return 2
+    except Exception as e:  # any unreadable file is one line, not a traceback
+        print(f"error: {path}: cannot inspect: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+        return 1
+    print(json.dumps(info, indent=1, default=str))
+    return 0
+
+
+def _presets(_args) -> int:
+    from .dipole import DipoleParams, total_diffuse_reflectance
+    from .materials import preset, preset_names
+
+    print(f"{'preset':<11} {'eta':>4}  {'R_d (RGB)':<20} {'mfp mm (RGB)':<22} diffusion length mm (RGB)")
+    for name in preset_names():
+        m = preset(name)
+        p = DipoleParams.from_material(m)
+        rd = total_diffuse_reflectance(p.alpha_prime, p.eta)
+        fmt = lambda v: " ".join(f"{x:6.3g}" for x in v)  # noqa: E731
+        print(f"{name:<11} {m.eta:4.2f}  {fmt(rd):<20} {fmt(m.mean_free_path_mm):<22} {fmt(m.diffusion_length_mm)}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sssbake", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    b = sub.add_parser("bake", help="bake assets (files or folders, walked recursively) into glTF + USD")
+    b.add_argument("paths", nargs="+", help="asset files or folders")
+    b.add_argument("-o", "--out", required=True, help="output folder (mirrors the input tree)")
+    b.add_argument("--material", help=f"preset name or 'opaque' for unmatched materials (default {BAKE_DEFAULTS.material})")
+    b.add_argument("--config", help="TOML batch config (defaults, per-file rules, material rules)")
+    b.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
+    b.add_argument("--atlas-resolution", type=int, help=f"atlas texels per side (default {BAKE_DEFAULTS.atlas_resolution})")
+    b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
+    b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
+    b.add_argument("--no-cache", action="store_true", help="recompute every stage")
+    b.add_argument("--no-validate", action="store_true", help="skip the glTF and USD validators")
+    b.add_argument("-q", "--quiet", action="store_true", help="no progress bar, only errors")
+    b.set_defaults(func=_bake)
+
+    i = sub.add_parser("inspect", help="show the sssbake data a .glb or .usdc holds, with bytes per vertex")
+    i.add_argument("file")
+    i.set_defaults(func=_inspect)
+
+    p = sub.add_parser("presets", help="list the measured material presets (Jensen et al. 2001)")
+    p.set_defaults(func=_presets)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,129 @@
+"""Reads an asset file into a `Scene`: dispatch by file extension, the shared `AssetError`, and
+the checks every reader's output must pass (finite positions, face indices in range, triangles).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .scene import Scene
+
+SUPPORTED_EXTENSIONS = (".obj", ".ply", ".stl", ".gltf", ".glb", ".usd", ".usda", ".usdc")
+
+
+class AssetError(Exception):
+    """A problem with one asset, for the user: ``str(e)`` is ``"<path>: <problem>"`` on one line.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The asset the problem is in.
+    problem : str
+        What is wrong, e.g. ``"truncated file: expected 1200 vertices, read 37"``; line breaks
+        are folded so the message stays on one line in batch logs.
+    """
+
+    def __init__(self, path: str | os.PathLike, problem: str):
+        self.path = os.fspath(path)
+        self.problem = "; ".join(line.strip() for line in str(problem).splitlines() if line.strip())
+        super().__init__(f"{self.path}: {self.problem}")
+
+    def __reduce__(self):
+        # Exception pickles its args (the joined message) by default; batch workers send errors
+        # across processes, so rebuild from the two fields instead.
+        return (type(self), (self.path, self.problem))
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read an OBJ, PLY, STL, glTF/GLB or USD file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    Scene
+        ``source`` is ``str(path)``; arrays as documented in `sssbake.pipeline.scene`.
+
+    Raises
+    ------
+    AssetError
+        For every problem with the file (missing, unsupported type, truncated, corrupt, no
+        triangles, non-finite positions, face indices out of range); no other exception escapes
+        for a bad file.
+    """
+    path = os.fspath(path)
+    ext = Path(path).suffix.lower()
+    if ext not in SUPPORTED_EXTENSIONS:
+        raise AssetError(
+            path, f"unsupported file type '{ext or Path(path).name}' (supported: {', '.join(SUPPORTED_EXTENSIONS)})"
+        )
+    try:
+        size = os.stat(path).st_size
+    except FileNotFoundError:
+        raise AssetError(path, "file not found") from None
+    except OSError as e:
+        raise AssetError(path, f"cannot read file: {e.strerror or e}") from None
+    if os.path.isdir(path):
+        raise AssetError(path, "is a folder, not a file")
+    if size == 0:
+        raise AssetError(path, "empty file (0 bytes)")
+    # Readers are imported here, not at module level: they import AssetError from this module,
+    # and a glTF-only batch need not pay for importing trimesh or pxr.
+    if ext in (".gltf", ".glb"):
+        from .load_gltf import load_gltf as reader
+    elif ext in (".usd", ".usda", ".usdc"):
+        from .load_usd import load_usd as reader
+    else:
+        from .load_trimesh import load_trimesh as reader
+    try:
+        scene = reader(path)
+    except AssetError:
+        raise
+    except OSError as e:
+        raise AssetError(path, f"cannot read file: {e.strerror or e}") from e
+    except Exception as e:  # any parser failure on a bad file must reach the user as one line
+        detail = str(e).splitlines()[0] if str(e) else ""
+        raise AssetError(path, f"corrupt {ext[1:].upper()} file ({type(e).__name__}: {detail})") from e
+    check_scene(scene)
+    return scene
+
+
+def check_scene(scene: Scene) -> None:
+    """Refuse a scene that later stages cannot work with.
+
+    Checks every primitive for (n, 3) positions that are all finite and (m, 3) faces whose
+    indices lie in ``[0, n)``, and the scene for at least one triangle.
+
+    Raises
+    ------
+    AssetError
+        Naming ``scene.source``, the mesh and the problem.
+    """
+    total_faces = 0
+    total_vertices = 0
+    for mesh in scene.meshes:
+        for prim in mesh.primitives:
+            pos, faces = prim.positions, prim.faces
+            where = f"in mesh '{mesh.name}'"
+            if pos.ndim != 2 or pos.shape[1] != 3:
+                raise AssetError(scene.source, f"vertex positions have shape {pos.shape}, expected (n, 3) {where}")
+            if faces.ndim != 2 or faces.shape[1] != 3:
+                raise AssetError(scene.source, f"faces have shape {faces.shape}, expected (m, 3) {where}")
+            bad = int(np.count_nonzero(~np.isfinite(pos).all(axis=1)))
+            if bad:
+                raise AssetError(scene.source, f"non-finite vertex positions ({bad} of {len(pos)}) {where}")
+            if faces.size:
+                lo, hi = int(faces.min()), int(faces.max())
+                if lo < 0:
+                    raise AssetError(scene.source, f"negative face index {lo} {where}")
+                if hi >= len(pos):
+                    raise AssetError(scene.source, f"face index {hi} out of range for {len(pos)} vertices {where}")
+            total_faces += len(faces)
+            total_vertices += len(pos)
+    if total_faces == 0:
+        raise AssetError(scene.source, f"no triangles ({total_vertices} vertices, 0 faces)")

@@ -1,0 +1,442 @@
+"""glTF 2.0 (.gltf with external or data-URI buffers, and .glb) through pygltflib's object model.
+
+The GLB container, buffers and accessors are decoded here rather than by pygltflib so that every
+inconsistency (short chunk, buffer shorter than a view needs, index out of range) becomes an
+`AssetError` that says which one.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import json
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import unquote, unquote_to_bytes
+
+import numpy as np
+import pygltflib
+
+from .load import AssetError
+from .scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef
+
+COMPONENT_DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
+TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+MODE_NAMES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP", 4: "TRIANGLES", 5: "TRIANGLE_STRIP", 6: "TRIANGLE_FAN"}
+GLB_JSON_CHUNK = 0x4E4F534A
+GLB_BIN_CHUNK = 0x004E4942
+# Geometry behind these cannot be decoded here; better to refuse than to load empty meshes.
+UNSUPPORTED_REQUIRED = ("KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_meshopt_compression")
+IMAGE_SIGNATURES = ((b"\x89PNG", "image/png"), (b"\xff\xd8", "image/jpeg"), (b"RIFF", "image/webp"), (b"\xabKTX", "image/ktx2"))
+
+
+@dataclass(frozen=True)
+class _Document:
+    """A parsed glTF file and its decoded buffers."""
+
+    path: str
+    gltf: pygltflib.GLTF2
+    buffers: tuple[bytes, ...]
+
+
+def load_gltf(path: str) -> Scene:
+    """Read a .gltf or .glb file.
+
+    Parameters
+    ----------
+    path : str
+        External buffers and images are resolved relative to its folder.
+
+    Returns
+    -------
+    Scene
+        Every mesh (TRIANGLES primitives; strips and fans converted to lists, points and lines
+        skipped), the node hierarchy of the default scene, materials, textures and images (bytes
+        as stored). ``meters_per_unit`` is 1 (the glTF spec), up axis ``"Y"``.
+
+    Raises
+    ------
+    AssetError
+        Bad GLB header or chunk, invalid JSON, missing or short buffers, indices out of range,
+        accessors of the wrong type, no triangles.
+    """
+    data = Path(path).read_bytes()
+    if Path(path).suffix.lower() == ".glb" or data[:4] == b"glTF":
+        text, blob = _split_glb(path, data)
+    else:
+        text, blob = _decode_text(path, data), None
+    gltf = _parse_json(path, text)
+    doc = _Document(path, gltf, _load_buffers(path, gltf, blob))
+    required = [e for e in gltf.extensionsRequired or () if e in UNSUPPORTED_REQUIRED]
+    if required:
+        raise AssetError(path, f"requires extension {required[0]}, which sssbake cannot decode")
+    meshes, skipped = [], []
+    for i, mesh in enumerate(gltf.meshes):
+        prims = []
+        for j, prim in enumerate(mesh.primitives):
+            read = _primitive(doc, prim, f"mesh {i} primitive {j}")
+            if read is None:
+                skipped.append(MODE_NAMES.get(prim.mode, str(prim.mode)))
+            else:
+                prims.append(read)
+        meshes.append(Mesh(mesh.name or f"mesh_{i}", tuple(prims)))
+    if not any(len(p.faces) for m in meshes for p in m.primitives):
+        if skipped:
+            raise AssetError(path, f"no triangles: only {', '.join(sorted(set(skipped)))} primitives ({len(skipped)} skipped)")
+        raise AssetError(path, "no triangles: the file has no mesh geometry")
+    nodes = _nodes(doc)
+    return Scene(
+        source=path,
+        meshes=tuple(meshes),
+        nodes=nodes,
+        roots=_roots(doc, nodes),
+        materials=tuple(_material(doc, m, i) for i, m in enumerate(gltf.materials)),
+        textures=tuple(_texture(doc, t, i) for i, t in enumerate(gltf.textures)),
+        images=tuple(_image(doc, im, i) for i, im in enumerate(gltf.images)),
+        up_axis="Y",
+        meters_per_unit=1.0,
+    )
+
+
+def _split_glb(path: str, data: bytes) -> tuple[str, bytes | None]:
+    """JSON text and BIN chunk of a GLB container."""
+    if len(data) < 12:
+        raise AssetError(path, f"truncated file: {len(data)} bytes, shorter than the 12-byte GLB header")
+    magic, version, length = struct.unpack_from("<4sII", data)
+    if magic != b"glTF":
+        raise AssetError(path, f"not a GLB file: bad magic {magic!r} (expected b'glTF')")
+    if version != 2:
+        raise AssetError(path, f"unsupported GLB version {version} (only 2 is supported)")
+    if length > len(data):
+        raise AssetError(path, f"truncated file: GLB header declares {length} bytes, the file has {len(data)}")
+    chunks = []
+    offset = 12
+    while offset + 8 <= length:
+        size, kind = struct.unpack_from("<II", data, offset)
+        if offset + 8 + size > length:
+            raise AssetError(
+                path, f"truncated file: GLB chunk {len(chunks)} declares {size} bytes, only {length - offset - 8} remain"
+            )
+        chunks.append((kind, data[offset + 8 : offset + 8 + size]))
+        offset += 8 + size
+    if not chunks or chunks[0][0] != GLB_JSON_CHUNK:
+        raise AssetError(path, "corrupt GLB: the first chunk is not JSON")
+    blob = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == GLB_BIN_CHUNK else None
+    return _decode_text(path, chunks[0][1]), blob
+
+
+def _decode_text(path: str, data: bytes) -> str:
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise AssetError(path, f"invalid JSON: not UTF-8 text (byte {e.start})") from None
+
+
+def _parse_json(path: str, text: str) -> pygltflib.GLTF2:
+    try:
+        raw = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise AssetError(path, f"invalid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+    if not isinstance(raw, dict):
+        raise AssetError(path, f"invalid glTF: the top-level JSON value is a {type(raw).__name__}, not an object")
+    try:
+        return pygltflib.GLTF2.gltf_from_json(text)
+    except Exception as e:  # pygltflib's decoder fails with assorted types on misplaced JSON values
+        raise AssetError(path, f"invalid glTF structure ({type(e).__name__}: {e})") from None
+
+
+def _item(doc: _Document, items: list, index, what: str):
+    """``items[index]`` or an `AssetError` naming `what` when the index is invalid."""
+    if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < len(items):
+        raise AssetError(doc.path, f"{what} index {index!r} out of range ({len(items)} {what}s)")
+    return items[index]
+
+
+def _uri_bytes(path: str, uri: str, what: str) -> tuple[bytes, str | None]:
+    """Bytes behind a data: URI or a file path relative to the asset, and the data URI's media type."""
+    if uri.startswith("data:"):
+        header, sep, payload = uri[5:].partition(",")
+        if not sep:
+            raise AssetError(path, f"{what}: malformed data URI")
+        try:
+            if header.endswith(";base64"):
+                return base64.b64decode(payload, validate=True), header[: -len(";base64")] or None
+            return unquote_to_bytes(payload), header or None
+        except (binascii.Error, ValueError):
+            raise AssetError(path, f"{what}: invalid base64 in data URI") from None
+    file = Path(path).parent / unquote(uri)
+    if not file.is_file():
+        raise AssetError(path, f"{what}: missing file '{uri}'")
+    return file.read_bytes(), None
+
+
+def _load_buffers(path: str, gltf: pygltflib.GLTF2, blob: bytes | None) -> tuple[bytes, ...]:
+    out = []
+    for i, buf in enumerate(gltf.buffers):
+        if buf.uri is None:
+            if blob is None or i != 0:
+                raise AssetError(path, f"buffer {i} has no uri and the file has no GLB binary chunk")
+            data = blob
+        else:
+            data, _ = _uri_bytes(path, buf.uri, f"buffer {i}")
+        if buf.byteLength is not None and len(data) < buf.byteLength:
+            raise AssetError(path, f"truncated buffer {i}: {len(data)} bytes, byteLength says {buf.byteLength}")
+        out.append(data)
+    return tuple(out)
+
+
+def _view(doc: _Document, index) -> tuple[memoryview, int | None]:
+    """Bytes of a buffer view and its byteStride."""
+    view = _item(doc, doc.gltf.bufferViews, index, "buffer view")
+    data = _item(doc, doc.buffers, view.buffer, "buffer")
+    start = view.byteOffset or 0
+    end = start + (view.byteLength or 0)
+    if end > len(data):
+        raise AssetError(
+            doc.path, f"buffer {view.buffer} is shorter than buffer view {index} needs ({len(data)} < {end} bytes)"
+        )
+    return memoryview(data)[start:end], view.byteStride
+
+
+def _strided(doc: _Document, view_index, offset: int, dtype: str, count: int, width: int, what: str) -> np.ndarray:
+    """(count, width) array of `dtype` read from a buffer view, honouring its byteStride."""
+    data, stride = _view(doc, view_index)
+    itemsize = np.dtype(dtype).itemsize
+    stride = stride or itemsize * width
+    needed = offset + (count - 1) * stride + itemsize * width if count else 0
+    if needed > len(data):
+        raise AssetError(doc.path, f"{what} needs {needed} bytes of buffer view {view_index}, which has {len(data)}")
+    return np.ndarray((count, width), dtype, buffer=data, offset=offset, strides=(stride, itemsize)).copy()
+
+
+def _accessor(doc: _Document, index, what: str) -> tuple[np.ndarray, pygltflib.Accessor]:
+    """(count, components) array of an accessor in its stored component type, sparse values applied."""
+    acc = _item(doc, doc.gltf.accessors, index, "accessor")
+    name = f"{what} (accessor {index})"
+    dtype = COMPONENT_DTYPES.get(acc.componentType)
+    width = TYPE_SIZES.get(acc.type)
+    if dtype is None or width is None:
+        raise AssetError(doc.path, f"{name} has unknown componentType {acc.componentType} or type {acc.type!r}")
+    count = acc.count
+    if not isinstance(count, int) or count < 0:
+        raise AssetError(doc.path, f"{name} has invalid count {count!r}")
+    if acc.bufferView is None:
+        values = np.zeros((count, width), dtype)
+    else:
+        values = _strided(doc, acc.bufferView, acc.byteOffset or 0, dtype, count, width, name)
+    if acc.sparse is not None:
+        sparse = acc.sparse
+        index_dtype = COMPONENT_DTYPES.get(sparse.indices.componentType)
+        if index_dtype is None or index_dtype[1] != "u":
+            raise AssetError(doc.path, f"{name}: sparse indices have componentType {sparse.indices.componentType}")
+        where = _strided(doc, sparse.indices.bufferView, sparse.indices.byteOffset or 0, index_dtype, sparse.count, 1, name)
+        where = where.ravel().astype(np.int64)
+        if len(where) and where.max() >= count:
+            raise AssetError(doc.path, f"{name}: sparse index {int(where.max())} out of range for {count} elements")
+        values[where] = _strided(doc, sparse.values.bufferView, sparse.values.byteOffset or 0, dtype, sparse.count, width, name)
+    return values, acc
+
+
+def _floats(values: np.ndarray, normalized: bool) -> np.ndarray:
+    """float64 copy; normalized integers mapped to [0, 1] (unsigned) or [-1, 1] (signed) as the spec says."""
+    if values.dtype.kind == "f" or not normalized:
+        return values.astype(np.float64)
+    out = values.astype(np.float64) / np.iinfo(values.dtype).max
+    return np.maximum(out, -1.0) if values.dtype.kind == "i" else out
+
+
+def _attribute(doc: _Document, index, name: str, types: tuple[str, ...], count: int | None, where: str) -> np.ndarray:
+    """float64 (count, k) vertex attribute, checked for type and (unless `count` is None) length."""
+    values, acc = _accessor(doc, index, f"{where} {name}")
+    if acc.type not in types:
+        raise AssetError(doc.path, f"{where}: {name} accessor {index} has type {acc.type}, expected {' or '.join(types)}")
+    if count is not None and len(values) != count:
+        raise AssetError(doc.path, f"{where}: {name} has {len(values)} elements but POSITION has {count}")
+    return _floats(values, bool(acc.normalized))
+
+
+def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primitive | None:
+    """A primitive's triangles and vertex attributes; None for points and lines."""
+    mode = 4 if prim.mode is None else prim.mode
+    if mode not in (4, 5, 6):
+        return None
+    raw = prim.attributes if isinstance(prim.attributes, dict) else vars(prim.attributes)
+    attrs = {k: v for k, v in raw.items() if v is not None}
+    if "POSITION" not in attrs:
+        raise AssetError(doc.path, f"{where} has no POSITION attribute")
+    positions = _attribute(doc, attrs["POSITION"], "POSITION", ("VEC3",), None, where)
+    n = len(positions)
+    normals = _attribute(doc, attrs["NORMAL"], "NORMAL", ("VEC3",), n, where) if "NORMAL" in attrs else None
+    uvs = []
+    while f"TEXCOORD_{len(uvs)}" in attrs:
+        uvs.append(_attribute(doc, attrs[f"TEXCOORD_{len(uvs)}"], f"TEXCOORD_{len(uvs)}", ("VEC2",), n, where))
+    colors = None
+    if "COLOR_0" in attrs:
+        colors = _attribute(doc, attrs["COLOR_0"], "COLOR_0", ("VEC3", "VEC4"), n, where)
+        if colors.shape[1] == 3:
+            colors = np.column_stack([colors, np.ones(n)])
+    if prim.indices is None:
+        index = np.arange(n, dtype=np.int64)
+    else:
+        values, acc = _accessor(doc, prim.indices, f"{where} indices")
+        if acc.type != "SCALAR":
+            raise AssetError(doc.path, f"{where}: indices accessor {prim.indices} has type {acc.type}, expected SCALAR")
+        index = values.ravel().astype(np.int64)
+        if len(index) and index.min() < 0:
+            raise AssetError(doc.path, f"{where}: negative index {int(index.min())} (indices must be unsigned)")
+    if prim.material is not None:
+        _item(doc, doc.gltf.materials, prim.material, "material")
+    return Primitive(
+        positions=positions,
+        faces=_faces(doc, index, mode, where),
+        normals=normals,
+        uvs=tuple(uvs),
+        colors=colors,
+        material=prim.material,
+    )
+
+
+def _faces(doc: _Document, index: np.ndarray, mode: int, where: str) -> np.ndarray:
+    """(m, 3) int64 triangles from a TRIANGLES, TRIANGLE_STRIP or TRIANGLE_FAN index list."""
+    if mode == 4:
+        if len(index) % 3:
+            raise AssetError(doc.path, f"{where}: {len(index)} indices is not a multiple of 3")
+        return index.reshape(-1, 3)
+    i = np.arange(max(len(index) - 2, 0))
+    if mode == 5:
+        # Every other strip triangle swaps two corners so all keep the strip's winding.
+        return np.column_stack([index[i], index[i + 1 + i % 2], index[i + 2 - i % 2]])
+    return np.column_stack([index[i + 1], index[i + 2], np.full(len(i), index[0] if len(index) else 0)])
+
+
+def _node_matrix(doc: _Document, node: pygltflib.Node, i: int) -> np.ndarray:
+    """(4, 4) local transform from ``matrix`` (column-major) or translation, rotation, scale."""
+    try:
+        if node.matrix is not None:
+            matrix = np.asarray(node.matrix, np.float64).reshape(4, 4).T
+        else:
+            t = np.asarray(node.translation if node.translation is not None else (0, 0, 0), np.float64).reshape(3)
+            q = np.asarray(node.rotation if node.rotation is not None else (0, 0, 0, 1), np.float64).reshape(4)
+            s = np.asarray(node.scale if node.scale is not None else (1, 1, 1), np.float64).reshape(3)
+            matrix = np.eye(4)
+            matrix[:3, :3] = _quaternion_matrix(q) * s
+            matrix[:3, 3] = t
+    except (ValueError, TypeError) as e:
+        raise AssetError(doc.path, f"node {i} has a malformed transform ({e})") from None
+    if not np.isfinite(matrix).all():
+        raise AssetError(doc.path, f"node {i} has a non-finite transform")
+    return matrix
+
+
+def _quaternion_matrix(q: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation of a quaternion (x, y, z, w), normalised first."""
+    norm = np.linalg.norm(q)
+    x, y, z, w = q / norm if norm > 0 else (0.0, 0.0, 0.0, 1.0)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _nodes(doc: _Document) -> tuple[Node, ...]:
+    """All nodes; refuses a graph where a node has two parents (it would not be a tree)."""
+    gltf = doc.gltf
+    nodes = []
+    parents = np.zeros(len(gltf.nodes), np.int64)
+    for i, node in enumerate(gltf.nodes):
+        if node.mesh is not None:
+            _item(doc, gltf.meshes, node.mesh, "mesh")
+        children = tuple(node.children or ())
+        for c in children:
+            _item(doc, gltf.nodes, c, "node")
+        np.add.at(parents, list(children), 1)
+        nodes.append(Node(node.name or f"node_{i}", _node_matrix(doc, node, i), node.mesh, children))
+    if len(parents) and parents.max() > 1:
+        raise AssetError(doc.path, f"node {int(parents.argmax())} is the child of more than one node")
+    return tuple(nodes)
+
+
+def _roots(doc: _Document, nodes: tuple[Node, ...]) -> tuple[int, ...]:
+    """Root nodes of the default scene (scene 0 when unset; every parentless node without scenes)."""
+    gltf = doc.gltf
+    children = {c for n in nodes for c in n.children}
+    if not gltf.scenes:
+        return tuple(i for i in range(len(nodes)) if i not in children)
+    scene = _item(doc, gltf.scenes, 0 if gltf.scene is None else gltf.scene, "scene")
+    roots = tuple(scene.nodes or ())
+    for r in roots:
+        _item(doc, gltf.nodes, r, "node")
+        # A root that is also a child could sit on a cycle; walking it would never end.
+        if r in children:
+            raise AssetError(doc.path, f"scene root node {r} is also the child of another node")
+    return roots
+
+
+def _texture_ref(doc: _Document, info, slot: str) -> TextureRef | None:
+    if info is None or info.index is None:
+        return None
+    _item(doc, doc.gltf.textures, info.index, f"{slot} texture")
+    return TextureRef(info.index, info.texCoord or 0)
+
+
+def _material(doc: _Document, m: pygltflib.Material, i: int) -> SourceMaterial:
+    """glTF material terms; defaults are the glTF spec's (metallic 1, roughness 1)."""
+    pbr = m.pbrMetallicRoughness or pygltflib.PbrMetallicRoughness()
+    ext = m.extensions or {}
+    base = tuple(float(x) for x in (pbr.baseColorFactor or (1.0, 1.0, 1.0, 1.0)))
+    emissive = tuple(float(x) for x in (m.emissiveFactor or (0.0, 0.0, 0.0)))
+    if len(base) != 4 or len(emissive) != 3:
+        raise AssetError(doc.path, f"material {i}: baseColorFactor needs 4 numbers and emissiveFactor 3")
+    ior = ext.get("KHR_materials_ior")
+    return SourceMaterial(
+        name=m.name or f"material_{i}",
+        base_color_factor=base,
+        base_color_texture=_texture_ref(doc, pbr.baseColorTexture, "baseColor"),
+        metallic_factor=1.0 if pbr.metallicFactor is None else float(pbr.metallicFactor),
+        roughness_factor=1.0 if pbr.roughnessFactor is None else float(pbr.roughnessFactor),
+        metallic_roughness_texture=_texture_ref(doc, pbr.metallicRoughnessTexture, "metallicRoughness"),
+        normal_texture=_texture_ref(doc, m.normalTexture, "normal"),
+        occlusion_texture=_texture_ref(doc, m.occlusionTexture, "occlusion"),
+        emissive_factor=emissive,
+        emissive_texture=_texture_ref(doc, m.emissiveTexture, "emissive"),
+        double_sided=bool(m.doubleSided),
+        ior=None if ior is None else float(ior.get("ior", 1.5)),
+        volume=dict(ext["KHR_materials_volume"]) if "KHR_materials_volume" in ext else None,
+        diffuse_transmission=(
+            dict(ext["KHR_materials_diffuse_transmission"]) if "KHR_materials_diffuse_transmission" in ext else None
+        ),
+    )
+
+
+def _texture(doc: _Document, t: pygltflib.Texture, i: int) -> Texture:
+    """Image and sampler state of a texture; the image may come from an extension (webp, basisu)."""
+    source = t.source
+    if source is None:
+        source = next((e["source"] for e in (t.extensions or {}).values() if isinstance(e, dict) and "source" in e), None)
+    if source is None:
+        raise AssetError(doc.path, f"texture {i} has no image")
+    _item(doc, doc.gltf.images, source, "image")
+    if t.sampler is None:
+        return Texture(source)
+    s = _item(doc, doc.gltf.samplers, t.sampler, "sampler")
+    return Texture(source, s.magFilter, s.minFilter, s.wrapS or 10497, s.wrapT or 10497)
+
+
+def _image(doc: _Document, im: pygltflib.Image, i: int) -> Image:
+    """Encoded bytes of an image (GLB buffer view, data: URI or external file) and its media type."""
+    uri_mime = None
+    if im.bufferView is not None:
+        data = bytes(_view(doc, im.bufferView)[0])
+    elif im.uri:
+        data, uri_mime = _uri_bytes(doc.path, im.uri, f"image {i}")
+    else:
+        raise AssetError(doc.path, f"image {i} has neither a uri nor a bufferView")
+    mime = im.mimeType or uri_mime or next((m for sig, m in IMAGE_SIGNATURES if data.startswith(sig)), None)
+    if mime is None:
+        raise AssetError(doc.path, f"image {i}: unknown image format")
+    name = im.name or (Path(unquote(im.uri)).stem if im.uri and not im.uri.startswith("data:") else f"image_{i}")
+    return Image(name, mime, data)

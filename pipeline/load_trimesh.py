@@ -1,0 +1,262 @@
+"""OBJ, PLY and STL through trimesh, unprocessed (no merging or cleaning: that is a later stage).
+
+trimesh is lenient with broken files (a truncated STL loads as nothing, a PLY whose header
+overstates its vertex count loads as garbage), so the headers are checked here first to name
+the actual problem.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .load import AssetError
+from .scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef
+
+PLY_TYPE_SIZES = {
+    "char": 1, "uchar": 1, "int8": 1, "uint8": 1,
+    "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+    "int": 4, "uint": 4, "int32": 4, "uint32": 4,
+    "float": 4, "float32": 4, "double": 8, "float64": 8,
+}
+PLY_FACE_LISTS = ("vertex_indices", "vertex_index")
+
+
+def load_trimesh(path: str) -> Scene:
+    """Read an OBJ, PLY or STL file.
+
+    One `Mesh` (one primitive) per trimesh geometry, one node per geometry instance. The
+    formats carry no unit, so ``meters_per_unit`` is None; up axis ``"Y"``.
+
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    Scene
+        Positions (n, 3) float64, faces (m, 3) int64; vertex normals (n, 3) only when the file
+        has them; UVs (n, 2) flipped to glTF convention (v down); vertex colours (n, 4) in [0, 1].
+
+    Raises
+    ------
+    AssetError
+        Truncated PLY/STL, malformed vertex line or face index out of range in an OBJ, no triangles.
+    """
+    ext = Path(path).suffix.lower()
+    data = Path(path).read_bytes()
+    if ext == ".ply":
+        _check_ply(path, data)
+    elif ext == ".stl":
+        _check_stl(path, data)
+    kwargs = {"split_objects": True} if ext == ".obj" else {}
+    try:
+        loaded = trimesh.load_scene(path, process=False, **kwargs)
+    except IndexError as e:
+        if ext == ".obj":
+            raise AssetError(path, _obj_index_problem(data)) from e
+        raise
+    except ValueError as e:
+        short = _obj_short_vertex(data) if ext == ".obj" else None
+        if short:
+            raise AssetError(path, short) from e
+        raise
+    meshes: list[Mesh] = []
+    names: dict[str, int] = {}
+    materials: dict[str | int, int] = {}
+    material_list: list[SourceMaterial] = []
+    images: list[Image] = []
+    has_materials = ext == ".obj" and b"usemtl" in data
+    points = 0
+    for name, geom in loaded.geometry.items():
+        if not isinstance(geom, trimesh.Trimesh):
+            points += len(getattr(geom, "vertices", ()))
+            continue
+        material = None
+        if has_materials and getattr(geom.visual, "material", None) is not None:
+            # Objects split from one OBJ carry copies of a shared MTL material: one entry per name.
+            key = geom.visual.material.name or id(geom.visual.material)
+            if key not in materials:
+                materials[key] = len(material_list)
+                material_list.append(_material(geom.visual.material, len(material_list), images))
+            material = materials[key]
+        names[name] = len(meshes)
+        meshes.append(Mesh(name, (_primitive(geom, material),)))
+    if not any(len(m.primitives[0].faces) for m in meshes):
+        found = f"{points} vertices but no faces" if points else "no geometry"
+        raise AssetError(path, f"no triangles: the file has {found}")
+    nodes = []
+    for node_name in loaded.graph.nodes_geometry:
+        matrix, geom_name = loaded.graph[node_name]
+        if geom_name in names:
+            nodes.append(Node(str(node_name), np.asarray(matrix, np.float64), names[geom_name]))
+    return Scene(
+        source=path,
+        meshes=tuple(meshes),
+        nodes=tuple(nodes),
+        roots=tuple(range(len(nodes))),
+        materials=tuple(material_list),
+        textures=tuple(Texture(i) for i in range(len(images))),
+        images=tuple(images),
+        up_axis="Y",
+        meters_per_unit=None,
+    )
+
+
+def _primitive(geom: trimesh.Trimesh, material: int | None) -> Primitive:
+    """Arrays of one trimesh geometry, keeping only what the file stated."""
+    n = len(geom.vertices)
+    # trimesh computes vertex normals lazily; they sit in the cache before any access only when
+    # the loader read them from the file.
+    normals = geom._cache.cache.get("vertex_normals")
+    uvs: tuple[np.ndarray, ...] = ()
+    uv = getattr(geom.visual, "uv", None) if geom.visual.kind == "texture" else None
+    if uv is not None and len(uv) == n:
+        uv = np.asarray(uv, np.float64)
+        uvs = (np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]),)
+    if geom.visual.kind == "vertex":
+        colors = np.asarray(geom.visual.vertex_colors, np.float64) / 255.0
+    else:
+        colors = _ply_colors(geom.metadata.get("_ply_raw"), n)
+    return Primitive(
+        positions=np.asarray(geom.vertices, np.float64),
+        faces=np.asarray(geom.faces, np.int64).reshape(-1, 3),
+        normals=None if normals is None or len(normals) != n else np.asarray(normals, np.float64),
+        uvs=uvs,
+        colors=colors,
+        material=material,
+    )
+
+
+def _ply_colors(raw: dict | None, n: int) -> np.ndarray | None:
+    """(n, 4) float64 colours from a PLY's raw vertex properties, or None.
+
+    trimesh drops vertex colours when the PLY also has UVs; the raw element data keeps them.
+    """
+    if not raw or "vertex" not in raw:
+        return None
+    data = raw["vertex"]["data"]
+    fields = data.dtype.names if isinstance(data, np.ndarray) else tuple(data)
+    if not fields or not all(c in fields for c in ("red", "green", "blue")):
+        return None
+    channels = [np.asarray(data[c]).reshape(-1) for c in ("red", "green", "blue", "alpha") if c in fields]
+    if len(channels[0]) != n:
+        return None
+    rgba = np.column_stack([_unit(c) for c in channels])
+    return rgba if rgba.shape[1] == 4 else np.column_stack([rgba, np.ones(n)])
+
+
+def _unit(channel: np.ndarray) -> np.ndarray:
+    """Integer colour channel to [0, 1] by its type's range; float channels are taken as is."""
+    if channel.dtype.kind in "ui":
+        return channel.astype(np.float64) / np.iinfo(channel.dtype).max
+    return channel.astype(np.float64)
+
+
+def _material(material, index: int, images: list[Image]) -> SourceMaterial:
+    """A `SourceMaterial` from a trimesh (MTL) material; a base colour image is re-encoded as PNG."""
+    pbr = material.to_pbr() if hasattr(material, "to_pbr") else material
+    factor = np.asarray(pbr.baseColorFactor if pbr.baseColorFactor is not None else (255, 255, 255, 255))
+    factor = factor / 255.0 if factor.dtype.kind in "ui" else factor.astype(np.float64)
+    texture = None
+    image = getattr(pbr, "baseColorTexture", None)
+    if image is not None:
+        buf = io.BytesIO()
+        image.save(buf, format="PNG")
+        texture = TextureRef(len(images))
+        name = material.name or f"material_{index}"
+        images.append(Image(f"{name}_base_color", "image/png", buf.getvalue()))
+    return SourceMaterial(
+        name=material.name or f"material_{index}",
+        base_color_factor=tuple(float(x) for x in np.resize(factor, 4)),
+        base_color_texture=texture,
+    )
+
+
+def _obj_index_problem(data: bytes) -> str:
+    """Name the first out-of-range vertex index of an OBJ's faces (trimesh only says IndexError)."""
+    text = data.decode("utf-8", "replace")
+    count = len(re.findall(r"^v\s", text, re.M))
+    face_text = "\n".join(re.findall(r"^f\s+(.*)$", text, re.M))
+    # The first number of each corner ("7", "7/2", "7//3") is the vertex index.
+    index = np.array(re.findall(r"(?:^|\s)(-?\d+)", face_text), dtype=np.int64)
+    bad = index[(index > count) | (index < -count) | (index == 0)]
+    if not len(bad):
+        return f"face index out of range for {count} vertices (texture or normal index out of range?)"
+    return f"face index {int(bad[0])} out of range for {count} vertices"
+
+
+def _obj_short_vertex(data: bytes) -> str | None:
+    """Name the first ``v`` line without three numbers (numpy's parser only says ValueError)."""
+    text = data.decode("utf-8", "replace")
+    number = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?|[-+]?(?:nan|inf)"
+    bad = re.search(rf"^v(?!(?:[ \t]+(?:{number})){{3}}(?:\s|$))[ \t].*$", text, re.M | re.I)
+    if bad is None:
+        return None
+    line = text.count("\n", 0, bad.start()) + 1
+    return f"line {line}: vertex '{bad.group(0).strip()[:40]}' does not start with 3 numbers (truncated file?)"
+
+
+def _check_ply(path: str, data: bytes) -> None:
+    """Compare a PLY's header with the size of its data; raise `AssetError` when data is missing."""
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise AssetError(path, "not a PLY file: no 'ply ... end_header' header")
+    body_start = data.find(b"\n", end)
+    body = data[body_start + 1 :] if body_start >= 0 else b""
+    fmt = None
+    elements: list[list] = []  # [name, count, fixed bytes, minimum values] per element
+    for line in data[:end].decode("ascii", "replace").splitlines():
+        words = line.split()
+        if not words:
+            continue
+        if words[0] == "format" and len(words) > 1:
+            fmt = words[1]
+        elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
+            elements.append([words[1], int(words[2]), 0, 0])
+        elif words[0] == "property" and elements and len(words) >= 3:
+            element = elements[-1]
+            if words[1] == "list" and len(words) == 5:
+                items = 3 if words[4] in PLY_FACE_LISTS else 0
+                element[2] += PLY_TYPE_SIZES.get(words[2], 0) + items * PLY_TYPE_SIZES.get(words[3], 0)
+                element[3] += 1 + items
+            else:
+                element[2] += PLY_TYPE_SIZES.get(words[1], 0)
+                element[3] += 1
+    if fmt is None:
+        raise AssetError(path, "corrupt PLY header: no 'format' line")
+    declared = ", ".join(f"{count} '{name}'" for name, count, _, _ in elements) + " elements"
+    if fmt == "ascii":
+        values, needed = len(body.split()), sum(count * minimum for _, count, _, minimum in elements)
+        if values < needed:
+            raise AssetError(
+                path, f"truncated file: header declares {declared}; the data ends after {values} of at least {needed} values"
+            )
+    else:
+        needed = sum(count * fixed for _, count, fixed, _ in elements)
+        if len(body) < needed:
+            raise AssetError(
+                path, f"truncated file: header declares {declared}; the data ends after {len(body)} of at least {needed} bytes"
+            )
+
+
+def _check_stl(path: str, data: bytes) -> None:
+    """Raise `AssetError` for an STL whose data stops before its triangle count says it should."""
+    if len(data) >= 84:
+        count = int(np.frombuffer(data, "<u4", 1, 80)[0])
+        if 84 + 50 * count == len(data):
+            return
+    if data.lstrip()[:5].lower() == b"solid":
+        if data.rfind(b"endsolid") < 0:
+            raise AssetError(path, "truncated file: ASCII STL without 'endsolid'")
+        return
+    if len(data) < 84:
+        raise AssetError(path, f"truncated file: {len(data)} bytes, shorter than the 84-byte binary STL header")
+    if 84 + 50 * count > len(data):
+        raise AssetError(
+            path, f"truncated file: header declares {count} triangles ({84 + 50 * count} bytes), the file has {len(data)} bytes"
+        )

@@ -1,0 +1,169 @@
+"""Source data of an asset as read from disk: meshes, node hierarchy, materials, textures.
+
+Derived data (welded surfaces, areas, thickness, atlases) lives in the stages' own dataclasses;
+nothing here is computed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Image:
+    """An encoded image kept byte-for-byte for re-export.
+
+    Attributes
+    ----------
+    name : str
+    mime_type : str
+        ``image/png`` or ``image/jpeg``.
+    data : bytes
+    """
+
+    name: str
+    mime_type: str
+    data: bytes
+
+
+@dataclass(frozen=True)
+class Texture:
+    """A texture reference: an image plus sampler state (glTF enums)."""
+
+    image: int
+    mag_filter: int | None = None
+    min_filter: int | None = None
+    wrap_s: int = 10497
+    wrap_t: int = 10497
+
+
+@dataclass(frozen=True)
+class TextureRef:
+    """A material slot's texture: which texture and which TEXCOORD set."""
+
+    texture: int
+    tex_coord: int = 0
+
+
+@dataclass(frozen=True)
+class SourceMaterial:
+    """A surface material as authored (glTF metallic-roughness terms).
+
+    `volume` and `diffuse_transmission` hold the KHR_materials_volume /
+    KHR_materials_diffuse_transmission JSON objects of the input when present, so the
+    material stage can map them to scattering parameters.
+    """
+
+    name: str
+    base_color_factor: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    base_color_texture: TextureRef | None = None
+    metallic_factor: float = 0.0
+    roughness_factor: float = 0.5
+    metallic_roughness_texture: TextureRef | None = None
+    normal_texture: TextureRef | None = None
+    occlusion_texture: TextureRef | None = None
+    emissive_factor: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    emissive_texture: TextureRef | None = None
+    double_sided: bool = False
+    ior: float | None = None
+    volume: dict | None = None
+    diffuse_transmission: dict | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Primitive:
+    """One triangle list with one material, as stored (seams split vertices).
+
+    Attributes
+    ----------
+    positions : (n, 3) float64
+        File units, in the mesh's local frame.
+    faces : (m, 3) int64
+    normals : (n, 3) float64 or None
+    uvs : tuple of (n, 2) float64
+        TEXCOORD_0, TEXCOORD_1, ... in glTF convention (v down from the image's top).
+    colors : (n, 4) float64 or None
+    material : int or None
+        Index into ``Scene.materials``.
+    """
+
+    positions: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray | None = None
+    uvs: tuple[np.ndarray, ...] = ()
+    colors: np.ndarray | None = None
+    material: int | None = None
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A named object made of one or more primitives, sharing one local frame."""
+
+    name: str
+    primitives: tuple[Primitive, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class Node:
+    """A node of the scene graph.
+
+    Attributes
+    ----------
+    matrix : (4, 4) float64
+        Local transform (column vectors: world = parent @ matrix @ p).
+    """
+
+    name: str
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(4))
+    mesh: int | None = None
+    children: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Everything read from one asset file.
+
+    Attributes
+    ----------
+    source : str
+        Path the scene was read from (for error messages and reports).
+    roots : tuple of int
+        Indices of the root nodes.
+    up_axis : str
+        ``"Y"`` or ``"Z"`` as the file declares (glTF, OBJ, PLY, STL: ``"Y"``).
+    meters_per_unit : float or None
+        What the file claims, if anything; never trusted for scattering (the asset's
+        ``scale_mm`` decides), but reported.
+    """
+
+    source: str
+    meshes: tuple[Mesh, ...]
+    nodes: tuple[Node, ...]
+    roots: tuple[int, ...]
+    materials: tuple[SourceMaterial, ...] = ()
+    textures: tuple[Texture, ...] = ()
+    images: tuple[Image, ...] = ()
+    up_axis: str = "Y"
+    meters_per_unit: float | None = None
+
+    def world_matrices(self) -> dict[int, np.ndarray]:
+        """World transform (4, 4) of every node reachable from the roots."""
+        out: dict[int, np.ndarray] = {}
+        stack = [(r, np.eye(4)) for r in self.roots]
+        while stack:
+            i, parent = stack.pop()
+            world = parent @ self.nodes[i].matrix
+            out[i] = world
+            stack.extend((c, world) for c in self.nodes[i].children)
+        return out
+
+    def mesh_instances(self) -> dict[int, list[np.ndarray]]:
+        """World matrices of every node that instances each mesh, by mesh index."""
+        out: dict[int, list[np.ndarray]] = {}
+        for i, world in sorted(self.world_matrices().items()):
+            m = self.nodes[i].mesh
+            if m is not None:
+                out.setdefault(m, []).append(world)
+        return out

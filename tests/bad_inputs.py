@@ -1,0 +1,132 @@
+"""A corpus of broken asset files, written by code so the repository ships no binary junk.
+
+`write_bad_inputs(folder)` writes every file and returns, per file name, a substring the loader's
+error message must contain (compare case-insensitively). Used by the loader tests and by the
+end-to-end batch tests.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+
+TRIANGLE = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]])
+TRIANGLE_FACES = np.array([[0, 1, 2], [1, 3, 2]])
+
+
+def _obj(vertices: np.ndarray, faces_one_based: np.ndarray) -> str:
+    v = "".join(f"v {x} {y} {z}\n" for x, y, z in vertices)
+    return v + "".join("f " + " ".join(str(i) for i in f) + "\n" for f in faces_one_based)
+
+
+def _binary_ply(vertices: np.ndarray, faces: np.ndarray, declared_vertices: int | None = None) -> bytes:
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {declared_vertices or len(vertices)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
+    ).encode()
+    face_records = np.zeros(len(faces), dtype=[("n", "u1"), ("v", "<i4", 3)])
+    face_records["n"], face_records["v"] = 3, faces
+    return header + vertices.astype("<f4").tobytes() + face_records.tobytes()
+
+
+def _binary_stl(vertices: np.ndarray, faces: np.ndarray) -> bytes:
+    records = np.zeros(len(faces), dtype=[("normal", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
+    records["v"] = vertices[faces]
+    return b"\0" * 80 + struct.pack("<I", len(faces)) + records.tobytes()
+
+
+def _gltf(positions: np.ndarray, indices: np.ndarray, *, position_type: str = "VEC3", buffer_uri: str | None = None,
+          indices_accessor: int = 1, truncate_buffer: int = 0, signed_indices: bool = False, mode: int = 4) -> dict:
+    """A one-mesh glTF with its buffer as a data URI (or `buffer_uri`); `truncate_buffer` bytes cut off its end."""
+    pos = positions.astype("<f4").tobytes()
+    idx = indices.astype("<i2" if signed_indices else "<u2").tobytes()
+    blob = pos + idx + b"\0" * (-len(idx) % 4)
+    width = {"VEC2": 2, "VEC3": 3}[position_type]
+    data = blob[: len(blob) - truncate_buffer]
+    return {
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": len(data),
+                     "uri": buffer_uri or "data:application/octet-stream;base64," + base64.b64encode(data).decode()}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": len(pos)},
+                        {"buffer": 0, "byteOffset": len(pos), "byteLength": len(idx)}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": positions.size // width, "type": position_type},
+            {"bufferView": 1, "componentType": 5122 if signed_indices else 5123, "count": indices.size, "type": "SCALAR"},
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": indices_accessor, "mode": mode}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+        "scene": 0,
+    }
+
+
+def _glb(gltf: dict) -> bytes:
+    text = json.dumps(gltf).encode()
+    text += b" " * (-len(text) % 4)
+    return struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(text)) + struct.pack("<II", len(text), 0x4E4F534A) + text
+
+
+def write_bad_inputs(folder: Path) -> dict[str, str]:
+    """Write the broken files into `folder` (which must exist).
+
+    Returns
+    -------
+    dict of str to str
+        File name → substring expected in the `AssetError` message for that file. The zero-byte
+        ``empty.usda`` is refused by the generic size check before any USD reader runs.
+    """
+    folder = Path(folder)
+    nan_quad = TRIANGLE.copy()
+    nan_quad[1, 0] = np.nan
+    good_ply = _binary_ply(TRIANGLE, TRIANGLE_FACES)
+    good_stl = _binary_stl(TRIANGLE, TRIANGLE_FACES)
+    text_files = {
+        "empty.obj": ("", "empty file"),
+        "vertices_only.obj": (_obj(TRIANGLE, np.zeros((0, 3), int)), "no triangles"),
+        "nan_vertex.obj": (_obj(nan_quad, TRIANGLE_FACES + 1), "non-finite vertex positions (1 of 4)"),
+        "index_out_of_range.obj": (_obj(TRIANGLE, np.array([[1, 2, 57]])), "face index 57 out of range for 4 vertices"),
+        "negative_index.obj": (_obj(TRIANGLE, np.array([[1, 2, -50]])), "face index -50 out of range"),
+        "garbage.obj": ("this is not a mesh\n{\"json\": true}\n<xml/>\n", "no triangles"),
+        "overstated_count.ply": (
+            "ply\nformat ascii 1.0\nelement vertex 1200\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 2\nproperty list uchar int vertex_indices\nend_header\n"
+            "0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 2\n",
+            "truncated file: header declares 1200",
+        ),
+        "index_out_of_range.ply": (
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 9\n",
+            "face index 9 out of range for 4 vertices",
+        ),
+        "truncated_ascii.stl": ("solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n", "endsolid"),
+        "invalid_json.gltf": ('{"asset": {"version": "2.0"}, "meshes": [', "invalid JSON"),
+        "missing_buffer.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, buffer_uri="missing.bin")), "missing file 'missing.bin'"),
+        "accessor_out_of_range.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, indices_accessor=7)), "accessor index 7 out of range"),
+        "nan_position.gltf": (json.dumps(_gltf(nan_quad, TRIANGLE_FACES)), "non-finite vertex positions (1 of 4)"),
+        "position_vec2.gltf": (json.dumps(_gltf(TRIANGLE[:, :2], TRIANGLE_FACES[:1], position_type="VEC2")), "expected VEC3"),
+        "short_buffer.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, truncate_buffer=10)), "shorter than buffer view 1 needs"),
+        "negative_index.gltf": (json.dumps(_gltf(TRIANGLE, -TRIANGLE_FACES - 1, signed_indices=True)), "negative index"),
+        "points_only.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, mode=0)), "no triangles"),
+        "model.fbx": ("Kaydara FBX Binary", "unsupported file type '.fbx'"),
+        "empty.usda": ("", "empty file"),
+    }
+    binary_files = {
+        "truncated_binary.ply": (good_ply[:-20], "truncated file"),
+        "truncated.stl": (good_stl[:-30], "truncated file: header declares 2 triangles"),
+        "empty.stl": (b"", "empty file"),
+        "bad_magic.glb": (b"gLTF" + _glb(_gltf(TRIANGLE, TRIANGLE_FACES))[4:], "bad magic"),
+        "truncated.glb": (_glb(_gltf(TRIANGLE, TRIANGLE_FACES))[:60], "truncated file: GLB header declares"),
+    }
+    expected = {}
+    for name, (text, needle) in text_files.items():
+        (folder / name).write_text(text)
+        expected[name] = needle
+    for name, (data, needle) in binary_files.items():
+        (folder / name).write_bytes(data)
+        expected[name] = needle
+    return expected

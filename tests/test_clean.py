@@ -1,0 +1,81 @@
+import numpy as np
+import pytest
+import trimesh
+
+from sssbake.pipeline.clean import area_weighted_normals, clean_scene, vertex_areas, weld_positions
+from sssbake.pipeline.load import AssetError
+from sssbake.pipeline.scene import Mesh, Node, Primitive, Scene
+
+
+def _scene(*prims: Primitive) -> Scene:
+    return Scene("t.obj", (Mesh("m", tuple(prims)),), (Node("n", np.eye(4), 0),), (0,))
+
+
+def test_vertex_areas_sum_to_surface_area():
+    s = trimesh.creation.icosphere(subdivisions=3, radius=2.0)
+    a = vertex_areas(np.asarray(s.vertices), np.asarray(s.faces))
+    np.testing.assert_allclose(a.sum(), s.area, rtol=1e-12)
+    # A regular grid's interior vertex owns exactly one cell: 6 triangles / 3 = one square of side h.
+    h = 0.1
+    g = np.arange(3) * h
+    xx, yy = np.meshgrid(g, g, indexing="ij")
+    v = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(9)])
+    idx = np.arange(9).reshape(3, 3)
+    a0, b0, c0, d0 = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    f = np.concatenate([np.column_stack([a0, b0, c0]), np.column_stack([a0, c0, d0])])
+    np.testing.assert_allclose(vertex_areas(v, f)[4], h * h)
+
+
+def test_normals_of_a_sphere_point_outward():
+    s = trimesh.creation.icosphere(subdivisions=3)
+    n = area_weighted_normals(np.asarray(s.vertices), np.asarray(s.faces))
+    np.testing.assert_allclose(np.einsum("ij,ij->i", n, s.vertices), 1.0, atol=5e-3)
+
+
+def test_weld_joins_seams_only_within_tolerance():
+    p = np.array([[0, 0, 0], [1e-9, 0, 0], [1, 0, 0], [1 + 1e-3, 0, 0]], dtype=float)
+    welded, idx = weld_positions(p, 1e-7)
+    assert len(welded) == 3 and idx[0] == idx[1] and idx[2] != idx[3]
+
+
+def test_clean_drops_degenerates_and_unused_and_fills_normals():
+    s = trimesh.creation.icosphere(subdivisions=2)
+    v = np.vstack([s.vertices, [[5.0, 5.0, 5.0]]])  # an unused vertex
+    f = np.vstack([s.faces, [[0, 0, 1]], [[0, 1, 1]]])  # two degenerate triangles
+    uv = np.column_stack([np.arange(len(v)) / len(v), np.zeros(len(v))])
+    out = clean_scene(_scene(Primitive(v, f, uvs=(uv,))))
+    prim = out.scene.meshes[0].primitives[0]
+    assert len(prim.faces) == len(s.faces) and len(prim.positions) == len(s.vertices)
+    np.testing.assert_array_equal(prim.uvs[0], uv[: len(s.vertices)])
+    assert prim.normals is not None and np.allclose(np.linalg.norm(prim.normals, axis=1), 1.0)
+    assert any("2 degenerate" in w for w in out.warnings)
+    np.testing.assert_allclose(out.surfaces[0].area, s.area, rtol=1e-12)
+
+
+def test_surface_welds_across_primitives_and_seams():
+    # A sphere split into two primitives with duplicated seam vertices must weld into one surface.
+    s = trimesh.creation.icosphere(subdivisions=2)
+    half = len(s.faces) // 2
+    parts = []
+    for faces in (s.faces[:half], s.faces[half:]):
+        used, inv = np.unique(faces, return_inverse=True)
+        parts.append(Primitive(np.asarray(s.vertices)[used], inv.reshape(-1, 3).astype(np.int64)))
+    out = clean_scene(_scene(*parts))
+    surf = out.surfaces[0]
+    assert len(surf.positions) == len(s.vertices)
+    for prim, w in zip(out.scene.meshes[0].primitives, surf.weld):
+        np.testing.assert_allclose(surf.positions[w], prim.positions)
+    edges = trimesh.Trimesh(surf.positions, surf.faces, process=False)
+    assert edges.is_watertight
+
+
+def test_mesh_without_area_is_left_out_and_all_degenerate_raises():
+    good = Primitive(np.eye(3), np.array([[0, 1, 2]]))
+    flat = Primitive(np.zeros((3, 3)), np.array([[0, 1, 2]]))
+    sc = Scene("t.glb", (Mesh("flat", (flat,)), Mesh("good", (good,))),
+               (Node("a", np.eye(4), 0), Node("b", np.eye(4), 1)), (0, 1))
+    out = clean_scene(sc)
+    assert [m.name for m in out.scene.meshes] == ["good"]
+    assert out.scene.nodes[0].mesh is None and out.scene.nodes[1].mesh == 0
+    with pytest.raises(AssetError, match="non-zero area"):
+        clean_scene(_scene(flat))

@@ -1,0 +1,92 @@
+"""The Khronos glTF-Validator accepts sssbake's output and catches broken files."""
+
+import importlib.util
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+import pytest
+
+from sssbake.exporters import gltf_validator
+from sssbake.exporters.gltf import UNSIGNED_INT, to_glb, write_glb
+from sssbake.exporters.gltf_validator import ValidatorUnavailable, find_validator, validate_glb, validate_many
+
+
+def _fixtures():
+    # Tests are imported by path (--import-mode=importlib), so the shared builders are too.
+    spec = importlib.util.spec_from_file_location("_gltf_fixtures", Path(__file__).with_name("test_gltf.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _validator_missing() -> str:
+    if shutil.which("node") is None:
+        return "node is not installed (install Node.js, then `npm install gltf-validator`)"
+    try:
+        find_validator()
+    except ValidatorUnavailable as exc:
+        return str(exc)
+    return ""
+
+
+needs_validator = pytest.mark.skipif(bool(_validator_missing()), reason=_validator_missing() or "available")
+
+
+def _broken(data: bytes, how: str) -> bytes:
+    gltf = pygltflib.GLTF2.load_from_bytes(data)
+    attrs = gltf.meshes[0].primitives[0].attributes
+    if how == "unsigned_int_attribute":
+        gltf.accessors[attrs._THICKNESS].componentType = UNSIGNED_INT
+    else:
+        gltf.accessors[attrs.POSITION].min = []
+        gltf.accessors[attrs.POSITION].max = []
+    return b"".join(gltf.save_to_bytes())
+
+
+@needs_validator
+def test_export_is_clean_and_broken_files_are_caught(tmp_path):
+    fixtures = _fixtures()
+    path = tmp_path / "sphere.glb"
+    write_glb(fixtures.icosphere_asset(double_sided=True), path)
+    good_bytes, _ = to_glb(fixtures.icosphere_asset(extras={"table": np.eye(3)}))
+    # one node process for all four: node's start-up dominates
+    clean, with_table, unsigned, unbounded = validate_many([
+        path, good_bytes, _broken(good_bytes, "unsigned_int_attribute"), _broken(good_bytes, "no_bounds"),
+    ])
+
+    for report in (clean, with_table):
+        assert (report.num_errors, report.num_warnings) == (0, 0), report.to_json()
+        assert report.ok
+    assert clean.uri == str(path) and with_table.uri == "<bytes>"
+    assert clean.validator_version
+    # The validator does not know KHR_materials_diffuse_transmission: an info, not a warning.
+    unsupported = [m for m in clean.messages if m.code == "UNSUPPORTED_EXTENSION"]
+    assert [(m.severity, m.pointer) for m in unsupported] == [("Information", "/extensionsUsed/0")]
+    assert "KHR_materials_diffuse_transmission" in unsupported[0].message
+
+    assert "MESH_PRIMITIVE_ATTRIBUTES_ACCESSOR_UNSIGNED_INT" in unsigned.codes("Error")
+    assert "MESH_PRIMITIVE_POSITION_ACCESSOR_WITHOUT_BOUNDS" in unbounded.codes("Error")
+    assert not unsigned.ok and not unbounded.ok
+    assert unbounded.to_json()["numErrors"] == unbounded.num_errors >= 1
+
+
+@needs_validator
+def test_garbage_is_reported_as_an_error():
+    with pytest.raises(RuntimeError, match="could not validate|failed"):
+        validate_glb(b"not a gltf file")
+
+
+def test_env_var_names_the_node_modules_folder(tmp_path, monkeypatch):
+    package = tmp_path / "node_modules" / "gltf-validator"
+    package.mkdir(parents=True)
+    (package / "package.json").write_text("{}")
+    monkeypatch.setenv(gltf_validator.ENV_VAR, str(tmp_path / "node_modules"))
+    assert find_validator() == tmp_path / "node_modules"
+
+
+def test_missing_node_says_how_to_install(monkeypatch):
+    monkeypatch.setattr(gltf_validator.shutil, "which", lambda name: None)
+    with pytest.raises(ValidatorUnavailable, match="npm install gltf-validator"):
+        validate_glb(b"glTF")
