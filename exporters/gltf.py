@@ -3,7 +3,7 @@
 Layout of the file (documented for readers in ``exporters/schema/sssbake.schema.json``):
 
 - one buffer (the GLB binary chunk); every buffer view starts on a 4-byte boundary;
-- per primitive: POSITION, NORMAL, TEXCOORD_n, COLOR_0 (float32), indices (uint16/uint32), and
+- per primitive: POSITION, NORMAL, TANGENT, TEXCOORD_n, COLOR_0 (float32), indices (uint16/uint32), and
   each sssbake vertex attribute as an application-specific attribute ``_KEY`` stored in its
   own buffer view with a 4-byte-aligned ``byteStride``;
 - translucent materials get ``KHR_materials_volume``, ``KHR_materials_diffuse_transmission`` and
@@ -405,6 +405,17 @@ def _primitive_attributes(packer: _Packer, prim, attrs: tuple[VertexAttribute, .
             raise ValueError(f"{where}: NORMAL has zero-length vectors")
         out["NORMAL"] = packer.accessor((normals / length).astype(np.float32), FLOAT, False, "vertex", "NORMAL",
                                         ARRAY_BUFFER)
+    if prim.tangents is not None:
+        tangents = np.asarray(prim.tangents, dtype=np.float64)
+        if tangents.shape != (n, 4):
+            raise ValueError(f"{where}: TANGENT has shape {tangents.shape}, expected ({n}, 4)")
+        _check_finite(tangents, f"{where}: TANGENT")
+        length = np.linalg.norm(tangents[:, :3], axis=1, keepdims=True)
+        if np.any(length == 0.0):
+            raise ValueError(f"{where}: TANGENT has zero-length vectors")
+        # The validator wants unit xyz and w exactly ±1; float64 data read from files is near both.
+        stored = np.column_stack([tangents[:, :3] / length, np.where(tangents[:, 3] < 0.0, -1.0, 1.0)])
+        out["TANGENT"] = packer.accessor(stored.astype(np.float32), FLOAT, False, "vertex", "TANGENT", ARRAY_BUFFER)
     for t, uv in enumerate(prim.uvs):
         name = f"TEXCOORD_{t}"
         uv = np.asarray(uv, dtype=np.float64)
@@ -482,6 +493,8 @@ def _material(src: SourceMaterial, scattering: ScatteringMaterial | None) -> tup
     if not (scattering.keep_base_color_texture and src.base_color_texture is not None):
         pbr.baseColorFactor = [float(c) for c in fb.base_color] + [1.0]
         pbr.baseColorTexture = None
+    # Scattering happens only in dielectrics; glTF's default metallicFactor is 1.
+    pbr.metallicFactor = 0.0
     material.doubleSided = False
     volume: dict = {"thicknessFactor": _finite_number(fb.thickness_factor, f"{what} thickness_factor")}
     if fb.thickness_texture is not None:

@@ -202,7 +202,8 @@ def bake_asset(
         tmap, _ = runner.run(
             "thickness_map", STAGE_VERSIONS["thickness_map"], mesh_key,
             {"resolution": options.atlas_resolution, "padding": options.atlas_padding, "rays": options.thickness_rays},
-            bake_thickness_map, atlas, [p.normals for p in mesh.primitives], surface, cap, options.thickness_rays,
+            bake_thickness_map, atlas, [(p.positions, p.normals) for p in mesh.primitives], surface, cap,
+            options.thickness_rays, options.atlas_padding,
         )
         tmax = max(float(tmap.image.max()), float(thick.thickness.max()), 1e-30)
         images.append(Image(f"{mesh.name}_thickness", "image/png", _png_gray(tmap.image / tmax)))
@@ -215,6 +216,7 @@ def bake_asset(
             uvs = uvs + (np.zeros((len(vm), 2)),) * (uv_set - len(uvs)) + (part.uvs,)
             prims.append(replace(
                 p, positions=p.positions[vm], faces=part.faces, normals=p.normals[vm], uvs=uvs,
+                tangents=p.tangents[vm] if p.tangents is not None else None,
                 colors=p.colors[vm] if p.colors is not None else None,
             ))
             if material_of.get(p.material) is not None:
@@ -264,7 +266,9 @@ def bake_asset(
                 if i in {p.material for mesh in scene.meshes for p in mesh.primitives}
             },
             "sizes": sizes,
-            "bytes": {"glb": glb_summary, "usdc": usd_summary},
+            # The exporters' summaries name the temporary file they wrote; the outputs are listed above.
+            "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"}
+                      for fmt, summary in (("glb", glb_summary), ("usdc", usd_summary))},
             "validation": validation,
             "stages": runner.to_json(),
             "seconds": round(time.perf_counter() - t_start, 4),
@@ -291,7 +295,7 @@ def _validate(runner: StageRunner, outputs, options: BakeOptions, warnings: list
         try:
             g = validate_glb(outputs[0])
             out["gltf"] = {"errors": g.num_errors, "warnings": g.num_warnings, "infos": g.num_infos,
-                           "messages": [m.to_json() for m in g.messages if m.severity <= 1]}
+                           "messages": [m.to_json() for m in g.messages if m.severity in ("Error", "Warning")]}
         except ValidatorUnavailable as e:
             warnings.append(f"glTF validation skipped: {e}")
         u = validate_usd(outputs[1])

@@ -13,6 +13,7 @@ import numpy as np
 
 from .load import AssetError
 from .scene import Mesh, Primitive, Scene
+from .tangents import vertex_tangents
 
 # Positions closer than this fraction of the bounding-box diagonal are the same point.
 WELD_TOLERANCE = 1e-7
@@ -55,7 +56,7 @@ class CleanScene:
     ----------
     scene : Scene
         Same structure as the input; each primitive without degenerate faces or unused vertices,
-        with unit normals.
+        with unit normals, and with tangents where its material has a normal texture.
     surfaces : tuple of Surface
         One per mesh, same order as ``scene.meshes``.
     warnings : tuple of str
@@ -118,7 +119,7 @@ def weld_positions(positions: np.ndarray, tolerance: float) -> tuple[np.ndarray,
 
 
 def _clean_primitive(prim: Primitive, tol: float, min_area: float) -> tuple[Primitive, int]:
-    """Drop degenerate faces and the vertices nothing references; fill missing normals."""
+    """Drop degenerate faces and the vertices nothing references, and unusable normals or tangents."""
     _, welded_index = weld_positions(prim.positions, tol)
     f = prim.faces
     wf = welded_index[f]
@@ -135,6 +136,10 @@ def _clean_primitive(prim: Primitive, tol: float, min_area: float) -> tuple[Prim
     if normals is not None:
         bad = ~np.all(np.isfinite(normals), axis=1) | (np.linalg.norm(normals, axis=1) < 1e-12)
         normals = None if bad.any() else _normalise(normals)
+    tangents = prim.tangents[used] if prim.tangents is not None else None
+    if tangents is not None:
+        bad = ~np.all(np.isfinite(tangents), axis=1) | (np.linalg.norm(tangents[:, :3], axis=1) < 1e-12)
+        tangents = None if bad.any() else tangents
     cleaned = replace(
         prim,
         positions=positions,
@@ -142,6 +147,7 @@ def _clean_primitive(prim: Primitive, tol: float, min_area: float) -> tuple[Prim
         normals=normals,
         uvs=tuple(uv[used] for uv in prim.uvs),
         colors=prim.colors[used] if prim.colors is not None else None,
+        tangents=tangents,
     )
     return cleaned, dropped
 
@@ -191,6 +197,16 @@ def clean_scene(scene: Scene) -> CleanScene:
         prims = [
             p if p.normals is not None else replace(p, normals=surf.normals[w]) for p, w in zip(prims, surf.weld)
         ]
+        for pi, p in enumerate(prims):
+            normal_texture = scene.materials[p.material].normal_texture if p.material is not None else None
+            if normal_texture is None or p.tangents is not None:
+                continue
+            if normal_texture.tex_coord < len(p.uvs):
+                prims[pi] = replace(p, tangents=vertex_tangents(p.positions, p.faces, p.normals,
+                                                                p.uvs[normal_texture.tex_coord]))
+            else:
+                warnings.append(f"mesh {mesh.name!r} primitive {pi}: the normal texture uses "
+                                f"TEXCOORD_{normal_texture.tex_coord}, which the primitive lacks; no tangents")
         kept[mi] = len(meshes)
         meshes.append(Mesh(mesh.name, tuple(prims)))
         surfaces.append(surf)

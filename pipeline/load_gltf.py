@@ -268,6 +268,7 @@ def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primiti
     positions = _attribute(doc, attrs["POSITION"], "POSITION", ("VEC3",), None, where)
     n = len(positions)
     normals = _attribute(doc, attrs["NORMAL"], "NORMAL", ("VEC3",), n, where) if "NORMAL" in attrs else None
+    tangents = _attribute(doc, attrs["TANGENT"], "TANGENT", ("VEC4",), n, where) if "TANGENT" in attrs else None
     uvs = []
     while f"TEXCOORD_{len(uvs)}" in attrs:
         uvs.append(_attribute(doc, attrs[f"TEXCOORD_{len(uvs)}"], f"TEXCOORD_{len(uvs)}", ("VEC2",), n, where))
@@ -294,6 +295,7 @@ def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primiti
         uvs=tuple(uvs),
         colors=colors,
         material=prim.material,
+        tangents=tangents,
     )
 
 

@@ -87,6 +87,8 @@ class Primitive:
     colors : (n, 4) float64 or None
     material : int or None
         Index into ``Scene.materials``.
+    tangents : (n, 4) float64 or None
+        glTF TANGENT: unit xyz and handedness w = ±1, bitangent = cross(normal, xyz) * w.
     """
 
     positions: np.ndarray
@@ -95,6 +97,7 @@ class Primitive:
     uvs: tuple[np.ndarray, ...] = ()
     colors: np.ndarray | None = None
     material: int | None = None
+    tangents: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -336,3 +336,53 @@ def test_attribute_of_wrong_length_raises():
     bad = BakedAsset(asset.scene, {(0, 0): (VertexAttribute("x", np.zeros(5)),)})
     with pytest.raises(ValueError, match="_X has shape"):
         to_glb(bad)
+
+
+def _with_plate(asset: BakedAsset, plate: Primitive) -> BakedAsset:
+    """`asset` with mesh 1's triangle replaced by `plate`."""
+    scene = Scene("memory", (asset.scene.meshes[0], Mesh("plate", (plate,))), asset.scene.nodes, asset.scene.roots,
+                  asset.scene.materials, asset.scene.textures, asset.scene.images)
+    return BakedAsset(scene, asset.vertex_attributes, asset.scattering, asset.scale_mm)
+
+
+def test_tangents_are_written_as_unit_float_vec4():
+    asset = icosphere_asset()
+    tri = asset.scene.meshes[1].primitives[0]
+    # Not quite unit and not quite ±1, as data read from a file can be.
+    given = np.array([[2.0, 0.0, 0.0, 1.0], [0.0, 0.5, 0.0, -0.999], [0.6, 0.8, 0.0, 1.0]])
+    data, summary = to_glb(_with_plate(asset, Primitive(tri.positions, tri.faces, tri.normals, tri.uvs,
+                                                        material=1, tangents=given)))
+    gltf = pygltflib.GLTF2.load_from_bytes(data)
+    attrs = gltf.meshes[1].primitives[0].attributes
+    acc = gltf.accessors[attrs.TANGENT]
+    assert (acc.componentType, acc.type) == (FLOAT, "VEC4") and not acc.normalized
+    assert gltf.bufferViews[acc.bufferView].target == ARRAY_BUFFER
+    np.testing.assert_allclose(read_accessor(gltf, attrs.TANGENT),
+                               [[1.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, -1.0], [0.6, 0.8, 0.0, 1.0]], atol=1e-7)
+    assert summary["bytes_per_vertex"]["TANGENT"] == 16.0
+    assert gltf.meshes[0].primitives[0].attributes.TANGENT is None
+
+
+@pytest.mark.parametrize("tangents,needle", [
+    (np.ones((4, 4)), r"TANGENT has shape \(4, 4\), expected \(3, 4\)"),
+    (np.array([[1.0, 0, 0, 1]] * 2 + [[np.nan, 0, 0, 1]]), "TANGENT has non-finite"),
+    (np.array([[1.0, 0, 0, 1]] * 2 + [[0.0, 0, 0, 1]]), "TANGENT has zero-length"),
+])
+def test_bad_tangents_raise(tangents, needle):
+    asset = icosphere_asset()
+    tri = asset.scene.meshes[1].primitives[0]
+    with pytest.raises(ValueError, match=needle):
+        to_glb(_with_plate(asset, Primitive(tri.positions, tri.faces, tri.normals, tri.uvs, material=1,
+                                            tangents=tangents)))
+
+
+def test_scattering_materials_are_dielectric():
+    asset = icosphere_asset()
+    metal = SourceMaterial("Marble", metallic_factor=1.0, metallic_roughness_texture=TextureRef(0, 0))
+    scene = Scene("memory", asset.scene.meshes, asset.scene.nodes, asset.scene.roots,
+                  (metal, asset.scene.materials[1]), asset.scene.textures, asset.scene.images)
+    data, _ = to_glb(BakedAsset(scene, asset.vertex_attributes, asset.scattering, asset.scale_mm))
+    doc = json.loads(data[20:20 + int.from_bytes(data[12:16], "little")])
+    # Written explicitly: an absent metallicFactor means 1.
+    assert doc["materials"][0]["pbrMetallicRoughness"]["metallicFactor"] == 0.0
+    assert doc["materials"][1]["pbrMetallicRoughness"]["metallicFactor"] == 1.0

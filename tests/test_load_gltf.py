@@ -213,6 +213,23 @@ def test_strip_fan_and_skipped_lines(tmp_path):
     assert (normals[:, 2] > 0).all()  # the strip's second triangle keeps the first one's winding
 
 
+def test_tangents_are_read_when_present(tmp_path):
+    tangents = np.array([[1.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, -1.0], [1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 1.0, -1.0]],
+                        np.float32)
+    gltf, blob = _raw_gltf([(TRI, "VEC3", {}), (TRI_FACES.ravel(), "SCALAR", {}), (tangents, "VEC4", {}),
+                            (tangents[:, :3].copy(), "VEC3", {})])
+    gltf["meshes"] = [{"primitives": [{"attributes": {"POSITION": 0, "TANGENT": 2}, "indices": 1},
+                                      {"attributes": {"POSITION": 0}, "indices": 1}]}]
+    gltf["nodes"] = [{"mesh": 0}]
+    with_tangents, without = load_scene(_write(tmp_path / "t.gltf", gltf, blob)).meshes[0].primitives
+    assert with_tangents.tangents.dtype == np.float64
+    np.testing.assert_array_equal(with_tangents.tangents, tangents)
+    assert without.tangents is None
+    gltf["meshes"][0]["primitives"][0]["attributes"]["TANGENT"] = 3
+    with pytest.raises(AssetError, match="TANGENT accessor 3 has type VEC3, expected VEC4"):
+        load_scene(_write(tmp_path / "t.gltf", gltf, blob))
+
+
 def test_external_buffer_and_image_and_parentless_roots(tmp_path):
     png = _png()
     gltf, blob = _raw_gltf([(TRI, "VEC3", {}), (TRI_FACES.ravel(), "SCALAR", {})])

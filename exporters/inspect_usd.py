@@ -1,0 +1,133 @@
+"""What sssbake data a USD file holds: schema version, ``primvars:sss:*`` and their bytes, material ``sss:`` attributes."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+from pxr import Usd, UsdGeom, UsdShade
+
+from .usd import SSS
+
+_PRIMVAR_PREFIX = "primvars:" + SSS
+
+
+def inspect_usdc(path: str | os.PathLike) -> dict:
+    """Summarise the sssbake content of a .usd/.usda/.usdc file.
+
+    Returns
+    -------
+    dict
+        ``path``, ``bytes`` (file size), ``creator`` (customLayerData), ``defaultPrim``,
+        ``upAxis``, ``metersPerUnit``, ``schemaVersion`` (the default prim's
+        ``sss:schemaVersion``, None if absent), ``extras`` (its ``sss:extras`` JSON, parsed),
+        ``meshes``: per Mesh prim ``path``, ``vertices`` (points), ``faces``, ``scaleMm``,
+        ``material`` (bound material path or None), ``primvars`` {``primvars:sss:<key>``:
+        {``type``, ``interpolation``, ``elementSize``, ``count`` (array elements), ``bytes``
+        (count × value bytes, as loaded), ``bytesPerVertex``, ``unit``, ``description``}} and
+        ``bytesPerVertex`` (all ``primvars:sss:*``); ``materials``: per Material prim with
+        ``sss:`` attributes its ``path`` and ``sss`` {attribute name without ``sss:``: value};
+        ``bytesPerVertex``: {``primvars:sss:<key>``: bytes / vertices of the meshes carrying it,
+        ``total``: all ``primvars:sss:*`` bytes / all vertices}.
+
+    Raises
+    ------
+    pxr.Tf.ErrorException
+        The file cannot be opened as a USD stage.
+    """
+    path = Path(path)
+    stage = Usd.Stage.Open(str(path))
+    time = Usd.TimeCode.EarliestTime()
+    default = stage.GetDefaultPrim()
+    root = default if default else stage.GetPseudoRoot()
+
+    meshes = []
+    attr_bytes: dict[str, int] = {}
+    attr_vertices: dict[str, int] = {}
+    total_vertices = 0
+    materials = []
+    for prim in Usd.PrimRange(root):
+        if prim.IsA(UsdShade.Material):
+            values = _sss_values(prim)
+            if values:
+                materials.append({"path": str(prim.GetPath()), "sss": values})
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        points = mesh.GetPointsAttr().Get(time)
+        n = len(points) if points is not None else 0
+        counts = mesh.GetFaceVertexCountsAttr().Get(time)
+        total_vertices += n
+        primvars = {}
+        for pv in UsdGeom.PrimvarsAPI(mesh).GetPrimvarsWithAuthoredValues():
+            name = pv.GetName()
+            if not name.startswith(_PRIMVAR_PREFIX):
+                continue
+            value = pv.Get(time)
+            array = np.asarray(value) if value is not None else np.zeros(0, np.float32)
+            count = len(value) if value is not None else 0
+            data = pv.GetAttr().GetCustomData()
+            primvars[name] = {
+                "type": str(pv.GetTypeName()),
+                "interpolation": pv.GetInterpolation(),
+                "elementSize": pv.GetElementSize(),
+                "count": count,
+                "bytes": int(array.nbytes),
+                "bytesPerVertex": array.nbytes / n if n else 0.0,
+                "unit": data.get("unit", ""),
+                "description": data.get("description", ""),
+            }
+            attr_bytes[name] = attr_bytes.get(name, 0) + int(array.nbytes)
+            attr_vertices[name] = attr_vertices.get(name, 0) + n
+        material = UsdShade.MaterialBindingAPI(prim).GetDirectBinding().GetMaterial()
+        meshes.append({
+            "path": str(prim.GetPath()),
+            "vertices": n,
+            "faces": len(counts) if counts is not None else 0,
+            "scaleMm": prim.GetAttribute(SSS + "scaleMm").Get(),
+            "material": str(material.GetPath()) if material else None,
+            "primvars": primvars,
+            "bytesPerVertex": sum(p["bytes"] for p in primvars.values()) / n if n else 0.0,
+        })
+
+    per_vertex = {name: attr_bytes[name] / attr_vertices[name] for name in attr_bytes if attr_vertices[name]}
+    per_vertex["total"] = sum(attr_bytes.values()) / total_vertices if total_vertices else 0.0
+    extras = root.GetAttribute(SSS + "extras").Get() if default else None
+    return {
+        "path": str(path),
+        "bytes": path.stat().st_size,
+        "creator": stage.GetRootLayer().customLayerData.get("creator"),
+        "defaultPrim": str(default.GetPath()) if default else None,
+        "upAxis": UsdGeom.GetStageUpAxis(stage),
+        "metersPerUnit": UsdGeom.GetStageMetersPerUnit(stage),
+        "schemaVersion": root.GetAttribute(SSS + "schemaVersion").Get() if default else None,
+        "extras": json.loads(extras) if extras else None,
+        "meshes": meshes,
+        "materials": materials,
+        "bytesPerVertex": per_vertex,
+    }
+
+
+def _sss_values(prim: Usd.Prim) -> dict:
+    """The ``sss:`` attributes of `prim` as JSON values, keyed without the prefix."""
+    out = {}
+    for attribute in prim.GetAuthoredAttributes():
+        name = attribute.GetName()
+        if name.startswith(SSS):
+            value = attribute.Get()
+            out[name.removeprefix(SSS)] = _json(value)
+    return out
+
+
+def _json(value):
+    """Attribute values for JSON; float32 components as their shortest decimal (0.9, not 0.8999999761581421)."""
+    if isinstance(value, (str, bool, int)) or value is None:
+        return value
+    if isinstance(value, float):
+        return float(str(np.float32(value)))
+    try:
+        return [float(str(np.float32(c))) for c in value]
+    except TypeError:
+        return str(value)

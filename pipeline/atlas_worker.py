@@ -1,0 +1,55 @@
+"""Child-process entry point for `sssbake.pipeline.atlas`: runs xatlas, whose crashes (SIGSEGV on
+very regular meshes) must not take the batch down with them.
+
+Usage: ``python -m sssbake.pipeline.atlas_worker IN.npz OUT.npz ATTEMPT``.
+
+``IN.npz`` holds ``resolution``, ``padding``, ``n_parts`` and per part ``positions_<i>`` (float32)
+and ``faces_<i>`` (uint32). ``OUT.npz`` gets ``width``, ``height``, ``chart_count`` and per part
+``vmapping_<i>``, ``faces_<i>``, ``uvs_<i>``.
+
+The environment variable ``SSSBAKE_ATLAS_TEST_CRASHES=k`` makes attempts ``0 .. k-1`` die by
+SIGSEGV before xatlas runs, so the parent's retry and error paths can be tested deterministically.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+
+import numpy as np
+import xatlas
+
+CRASH_ENV = "SSSBAKE_ATLAS_TEST_CRASHES"
+
+
+def main(argv: list[str]) -> None:
+    in_path, out_path, attempt = argv[0], argv[1], int(argv[2])
+    if attempt < int(os.environ.get(CRASH_ENV, "0")):
+        os.kill(os.getpid(), signal.SIGSEGV)
+
+    with np.load(in_path) as data:
+        n_parts = int(data["n_parts"])
+        atlas = xatlas.Atlas()
+        for i in range(n_parts):
+            atlas.add_mesh(data[f"positions_{i}"], data[f"faces_{i}"])
+        pack = xatlas.PackOptions()
+        pack.resolution = int(data["resolution"])
+        pack.padding = int(data["padding"])
+    atlas.generate(xatlas.ChartOptions(), pack)
+
+    out = {
+        "width": np.int64(atlas.width),
+        "height": np.int64(atlas.height),
+        "chart_count": np.int64(atlas.chart_count),
+    }
+    for i in range(n_parts):
+        vmapping, faces, uvs = atlas[i]
+        out[f"vmapping_{i}"] = vmapping
+        out[f"faces_{i}"] = faces
+        out[f"uvs_{i}"] = uvs
+    np.savez(out_path, **out)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
