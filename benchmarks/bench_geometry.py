@@ -1,8 +1,9 @@
 """Time the geometry building blocks on the Stanford dragon (100k faces).
 
 Usage: ``python benchmarks/bench_geometry.py [path/to/mesh.obj]``. Prints wall seconds per step and
-the process's peak resident memory after it (ru_maxrss only grows, so a step's peak is the value
-printed after it when it is the largest so far). Skips when the asset is absent.
+this process's peak resident memory so far (ru_maxrss only grows, so a step's peak is the value
+printed after it when it is the largest so far). xatlas runs in a child process, not counted here:
+a child's ru_maxrss includes the parent pages it had between fork and exec, so it says nothing. Skips when the asset is absent.
 """
 
 from __future__ import annotations

@@ -34,7 +34,7 @@ from .thickness import bake_thickness
 from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
-STAGE_VERSIONS = {"load": 1, "clean": 1, "atlas": 1, "thickness": 1, "thickness_map": 1}
+STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 1, "thickness": 1, "thickness_map": 1}
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import json
 import multiprocessing
+import os
 import time
 import traceback
 from dataclasses import dataclass
@@ -46,7 +47,7 @@ def find_assets(paths: list[Path], out_dir: Path) -> list[Job]:
             continue
         if not root.is_dir():
             raise FileNotFoundError(f"{root}: no such file or folder")
-        for p in sorted(root.rglob("*")):
+        for p in sorted(_walk(root)):
             rel = p.relative_to(root)
             if (
                 p.is_file()
@@ -63,6 +64,13 @@ def find_assets(paths: list[Path], out_dir: Path) -> list[Job]:
         base = rel.with_suffix("") if stems[rel.with_suffix("")] == 1 else rel
         jobs.append(Job(p, rel.as_posix(), out_dir / base))
     return jobs
+
+
+def _walk(root: Path):
+    """Every file under `root`, following symlinked folders (asset libraries are often linked)."""
+    for folder, dirs, files in os.walk(root, followlinks=True):
+        dirs[:] = [d for d in dirs if not d.startswith(".")]
+        yield from (Path(folder) / f for f in files)
 
 
 def run_job(job: Job, config: BatchConfig, overrides: dict, cache_dir: str | None) -> dict:

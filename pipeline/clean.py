@@ -167,6 +167,26 @@ def _surface(prims: list[Primitive], tol: float) -> Surface:
     )
 
 
+def _encloses_negative_volume(surf: Surface) -> bool:
+    """True when the surface's winding clearly points its normals inward.
+
+    The signed volume of a closed surface is positive for outward winding; scans with small
+    holes keep the sign. Open shells enclose little: they are left alone unless the signed
+    volume is over 1% of the bounding box's.
+    """
+    p = surf.positions[surf.faces] - surf.positions.mean(axis=0)
+    volume = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0
+    return volume < -0.01 * float(np.prod(np.ptp(surf.positions, axis=0)))
+
+
+def _flip_winding(prim: Primitive, inward_normals: np.ndarray) -> Primitive:
+    """Reverse a primitive's triangles; authored normals that agreed with the inward winding flip too."""
+    normals = prim.normals
+    if normals is not None and np.einsum("ij,ij->", normals, inward_normals) > 0:
+        normals = -normals
+    return replace(prim, faces=prim.faces[:, ::-1].copy(), normals=normals)
+
+
 def clean_scene(scene: Scene) -> CleanScene:
     """Clean every mesh of `scene` and build its welded surface.
 
@@ -194,6 +214,10 @@ def clean_scene(scene: Scene) -> CleanScene:
             warnings.append(f"mesh {mesh.name!r}: no triangle with area; mesh left out")
             continue
         surf = _surface(prims, tol)
+        if _encloses_negative_volume(surf):
+            prims = [_flip_winding(p, surf.normals[w]) for p, w in zip(prims, surf.weld)]
+            surf = _surface(prims, tol)
+            warnings.append(f"mesh {mesh.name!r}: triangles were wound inward (negative enclosed volume); flipped")
         prims = [
             p if p.normals is not None else replace(p, normals=surf.normals[w]) for p, w in zip(prims, surf.weld)
         ]

@@ -81,3 +81,10 @@ def test_bad_input_raises(parts):
         compute_atlas([(positions, faces + len(positions))])
     with pytest.raises(AtlasError, match="part 0 faces"):
         compute_atlas([(positions, faces[:0])])
+
+
+def test_worker_error_is_reported(parts, monkeypatch):
+    # A malformed hook value makes the worker exit with a Python error instead of a signal.
+    monkeypatch.setenv(CRASH_ENV, "not-a-number")
+    with pytest.raises(AtlasError, match=r"atlas: xatlas failed \(ValueError"):
+        compute_atlas(parts[:1], resolution=64, padding=2)

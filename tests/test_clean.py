@@ -79,3 +79,16 @@ def test_mesh_without_area_is_left_out_and_all_degenerate_raises():
     assert out.scene.nodes[0].mesh is None and out.scene.nodes[1].mesh == 0
     with pytest.raises(AssetError, match="non-zero area"):
         clean_scene(_scene(flat))
+
+
+def test_inward_winding_is_flipped_outward():
+    s = trimesh.creation.icosphere(subdivisions=2)
+    inward = Primitive(np.asarray(s.vertices), np.asarray(s.faces)[:, ::-1].copy())
+    out = clean_scene(_scene(inward))
+    prim = out.scene.meshes[0].primitives[0]
+    np.testing.assert_array_equal(prim.faces, s.faces)
+    assert np.einsum("ij,ij->i", prim.normals, s.vertices).min() > 0.9
+    assert any("wound inward" in w for w in out.warnings)
+    # An open, flat patch encloses nothing and is never flipped.
+    flat = Primitive(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 2, 1]]))
+    assert clean_scene(_scene(flat)).scene.meshes[0].primitives[0].faces.tolist() == [[0, 2, 1]]

@@ -110,3 +110,17 @@ def test_bad_input_raises():
         rasterize_atlas([(uv, np.array([[0, 1, 3]]), _flat(uv), UP)], 4, 4)
     with pytest.raises(ValueError, match="dilate mask"):
         dilate(np.zeros((4, 4, 3)), np.zeros((4, 5), dtype=bool), 1)
+
+
+def test_chunking_does_not_change_the_result(sphere_texels, monkeypatch):
+    from sssbake.pipeline import texels as module
+
+    mesh, part, whole = sphere_texels
+    monkeypatch.setattr(module, "CHUNK", 5000)
+    chunked = rasterize_atlas(
+        [(part.uvs, part.faces, mesh.vertices[part.vmapping], mesh.vertex_normals[part.vmapping])],
+        whole.width,
+        whole.height,
+    )
+    for field in ("rows", "cols", "face", "barycentric", "areas"):
+        np.testing.assert_array_equal(getattr(chunked, field), getattr(whole, field))

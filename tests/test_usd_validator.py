@@ -15,8 +15,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_usd import icosphere_asset  # noqa: E402
 
 
-def minimal_stage(path: Path, binding_api: bool = True, metadata: bool = True) -> Usd.Stage:
-    """A one-triangle mesh bound to a UsdPreviewSurface material, saved at `path`."""
+def minimal_stage(path: Path, binding_api: bool = True, metadata: bool = True) -> Path:
+    """Save a one-triangle mesh bound to a UsdPreviewSurface material at `path`; returns `path`."""
     stage = Usd.Stage.CreateNew(str(path))
     if metadata:
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
@@ -37,7 +37,7 @@ def minimal_stage(path: Path, binding_api: bool = True, metadata: bool = True) -
         # Authoring the relationship without applying the schema is what the validator catches.
         mesh.GetPrim().CreateRelationship("material:binding").SetTargets([material.GetPath()])
     stage.GetRootLayer().Save()
-    return stage
+    return path
 
 
 def test_our_output_is_clean(tmp_path):
@@ -57,24 +57,24 @@ def test_output_without_materials_and_multi_primitive_mesh_is_clean(tmp_path):
 
 
 def test_minimal_correct_stage_is_clean(tmp_path):
-    assert validate_usd(minimal_stage(tmp_path / "ok.usda").GetRootLayer().realPath).errors == ()
+    assert validate_usd(minimal_stage(tmp_path / "ok.usda")).errors == ()
 
 
 def test_missing_material_binding_api_is_an_error(tmp_path):
-    report = validate_usd(minimal_stage(tmp_path / "bad.usda", binding_api=False).GetRootLayer().realPath)
+    report = validate_usd(minimal_stage(tmp_path / "bad.usda", binding_api=False))
     assert len(report.errors) == 1
     assert report.errors[0].startswith("usdShadeValidators:MaterialBindingApiAppliedValidator: ")
     assert "[at /Root/Tri]" in report.errors[0]
 
 
 def test_missing_stage_metadata_is_an_error(tmp_path):
-    report = validate_usd(minimal_stage(tmp_path / "bad.usda", metadata=False).GetRootLayer().realPath)
+    report = validate_usd(minimal_stage(tmp_path / "bad.usda", metadata=False))
     assert sum("usdGeomValidators:StageMetadataChecker" in e for e in report.errors) == 2
     assert any("metersPerUnit" in e for e in report.errors) and any("upAxis" in e for e in report.errors)
 
 
 def test_element_counts_are_checked(tmp_path):
-    stage = minimal_stage(tmp_path / "counts.usda")
+    stage = Usd.Stage.Open(str(minimal_stage(tmp_path / "counts.usda")))
     mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Tri"))
     api = UsdGeom.PrimvarsAPI(mesh)
     api.CreatePrimvar("sss:thickness", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set([1.0, 2.0])
