@@ -1,4 +1,5 @@
-"""What sssbake data a USD file holds: schema version, ``primvars:sss:*`` and their bytes, material ``sss:`` attributes."""
+"""What sssbake data a USD file holds: schema version, ``primvars:sss:*`` and their bytes, material
+``sss:`` attributes."""
 
 from __future__ import annotations
 

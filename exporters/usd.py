@@ -125,12 +125,14 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
             mesh = scene.meshes[node.mesh]
             for j, prim in enumerate(mesh.primitives):
                 name = mesh.name if len(mesh.primitives) == 1 else f"{mesh.name}_{j}"
-                mesh_path = path.AppendChild(_unique(_identifier(name, f"mesh{node.mesh}_{j}"), taken.setdefault(path, set())))
+                mesh_name = _unique(_identifier(name, f"mesh{node.mesh}_{j}"), taken.setdefault(path, set()))
+                mesh_path = path.AppendChild(mesh_name)
                 where = f"mesh {mesh.name!r} primitive {j}"
                 usd_mesh = _mesh(stage, mesh_path, prim, asset.vertex_attributes.get((node.mesh, j), ()), where, acc)
                 if node.mesh in asset.scale_mm:
                     scale = _finite_number(asset.scale_mm[node.mesh], f"scale_mm of mesh {mesh.name!r}")
-                    usd_mesh.GetPrim().CreateAttribute(SSS + "scaleMm", Sdf.ValueTypeNames.Double, custom=True).Set(scale)
+                    attribute = usd_mesh.GetPrim().CreateAttribute(SSS + "scaleMm", Sdf.ValueTypeNames.Double, custom=True)
+                    attribute.Set(scale)
                 if prim.material is not None:
                     src = scene.materials[prim.material]
                     if src.double_sided and prim.material not in asset.scattering:

@@ -42,7 +42,8 @@ class UsdValidationReport:
         return not self.errors and not self.warnings
 
     def to_json(self) -> dict:
-        return {"uri": self.uri, "errors": list(self.errors), "warnings": list(self.warnings), "infos": list(self.infos)}
+        return {"uri": self.uri, "errors": list(self.errors), "warnings": list(self.warnings),
+                "infos": list(self.infos)}
 
 
 def validate_usd(path: str | os.PathLike) -> UsdValidationReport:

@@ -241,11 +241,11 @@ def bake_asset(
     asset = BakedAsset(baked_scene, attributes, scattering, scale_mm, extras)
     written: list[Path] = []
     try:
-        with runner.timed("export_gltf"), atomic_path(outputs[0]) as tmp:
-            glb_summary = write_glb(asset, tmp)
+        with runner.timed("export_gltf"):
+            glb_summary = write_glb(asset, outputs[0])
         written.append(outputs[0])
-        with runner.timed("export_usd"), atomic_path(outputs[1]) as tmp:
-            usd_summary = write_usdc(asset, tmp)
+        with runner.timed("export_usd"):
+            usd_summary = write_usdc(asset, outputs[1])
         written.append(outputs[1])
         validation = _validate(runner, outputs, options, warnings)
         report = {
@@ -266,7 +266,6 @@ def bake_asset(
                 if i in {p.material for mesh in scene.meshes for p in mesh.primitives}
             },
             "sizes": sizes,
-            # The exporters' summaries name the temporary file they wrote; the outputs are listed above.
             "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"}
                       for fmt, summary in (("glb", glb_summary), ("usdc", usd_summary))},
             "validation": validation,

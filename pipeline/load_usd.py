@@ -175,8 +175,6 @@ class _Reader:
         positions, faces, attributes = _split_vertices(points, indices, corners, data)
         uv_names = [name for name in attributes if name.startswith("uv:")]
         normals = attributes.get("normals")
-        if normals is not None:
-            normals = normals.astype(np.float64)
         uvs = tuple(np.column_stack([attributes[k][:, 0], 1.0 - attributes[k][:, 1]]) for k in uv_names)
         colors = None
         if "color" in attributes:

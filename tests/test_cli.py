@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from pxr import Usd
 
 from sssbake.pipeline.cli import main
 
@@ -41,6 +42,8 @@ def test_samples_bake_clean(baked_samples):
     assert candle["materials"]["Brass"]["scattering"] is None
     assert candle["materials"]["Wax"]["reason"].startswith("material name matches")
     assert candle["scale_mm_per_unit"] == 1000.0
+    # Outputs are written under temporary names; the default prim is named after the real file.
+    assert Usd.Stage.Open(str(out / "thin_slab.usdc")).GetDefaultPrim().GetName() == "thin_slab"
 
 
 def test_rerun_does_no_work(baked_samples):

@@ -4,6 +4,7 @@ import io
 import json
 from importlib import resources
 
+import jsonschema
 import numpy as np
 import pygltflib
 import pytest
@@ -254,7 +255,6 @@ def test_asset_extras_and_tables():
 
 
 def test_extras_match_the_documented_schema():
-    jsonschema = pytest.importorskip("jsonschema", reason="jsonschema is not installed")
     schema = json.loads(resources.files("sssbake.exporters").joinpath("schema/sssbake.schema.json").read_text())
     jsonschema.Draft202012Validator.check_schema(schema)
     assert schema["version"] == SCHEMA_VERSION

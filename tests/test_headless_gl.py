@@ -1,9 +1,8 @@
 """The headless GL stack the reference renderer relies on: moderngl on EGL (Mesa llvmpipe here)."""
 
+import moderngl
 import numpy as np
 import pytest
-
-moderngl = pytest.importorskip("moderngl")
 
 
 def test_egl_context_rasterises_a_triangle():

@@ -103,6 +103,9 @@ def Mesh "M"
 }}
 """
 
+GUIDE_TRIANGLE = TRIANGLE.format(points="(0, 0, 0), (1, 0, 0), (0, 1, 0)", counts="3", indices="0, 1, 2").replace(
+    "{\n", '{\n    uniform token purpose = "guide"\n')
+
 
 def write(tmp_path: Path, name: str, text: str) -> Path:
     path = tmp_path / name
@@ -200,8 +203,7 @@ def test_whole_stage_without_default_prim(tmp_path):
         ("text.usdc", "this is not a crate file either, just text", "corrupt USD file"),
         ("no_meshes.usda", '#usda 1.0\n(\n    defaultPrim = "A"\n)\n\ndef Xform "A"\n{\n}\n',
          "no meshes: no UsdGeom.Mesh prims under </A>"),
-        ("only_guide.usda", TRIANGLE.format(points="(0, 0, 0), (1, 0, 0), (0, 1, 0)", counts="3", indices="0, 1, 2")
-         .replace("{\n", '{\n    uniform token purpose = "guide"\n'), "no meshes: no UsdGeom.Mesh prims in the stage (1 guide/proxy"),
+        ("only_guide.usda", GUIDE_TRIANGLE, "no meshes: no UsdGeom.Mesh prims in the stage (1 guide/proxy"),
     ],
 )
 def test_bad_files(tmp_path, name, text, needle):
@@ -243,3 +245,41 @@ def test_primvar_length_must_fit_interpolation(tmp_path):
     text = TRIANGLE.format(points="(0, 0, 0), (1, 0, 0), (0, 1, 0)", counts="3", indices="0, 1, 2").replace(
         "}\n", '    texCoord2f[] primvars:st = [(0, 0), (1, 0)] (\n        interpolation = "vertex"\n    )\n}\n')
     one_line_error(write(tmp_path, "st.usda", text), "primvars:st has 2 values, vertex interpolation needs 3")
+
+
+def test_reset_xform_stack_and_instances(tmp_path):
+    text = """#usda 1.0
+
+def Xform "A"
+{
+    double3 xformOp:translate = (10, 0, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+
+    def Xform "B"
+    {
+        double3 xformOp:translate = (0, 5, 0)
+        uniform token[] xformOpOrder = ["!resetXformStack!", "xformOp:translate"]
+
+        def Mesh "M"
+        {
+            point3f[] points = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
+            int[] faceVertexCounts = [3]
+            int[] faceVertexIndices = [0, 1, 2]
+        }
+    }
+}
+
+def Xform "C" (
+    instanceable = true
+    references = </A>
+)
+{
+    double3 xformOp:translate = (0, 0, 3)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}
+"""
+    scene = load_usd(write(tmp_path, "reset.usda", text))
+    assert [n.name for n in scene.nodes] == ["A", "B", "M", "C", "B", "M"] and scene.roots == (0, 3)
+    # B ignores its parents' transforms, also inside the instance of A under C.
+    for worlds in scene.mesh_instances().values():
+        np.testing.assert_array_equal(worlds[0][:3, 3], [0, 5, 0])

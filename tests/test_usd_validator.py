@@ -9,7 +9,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdShade
 
 from sssbake.exporters.usd import write_usdc
 from sssbake.exporters.usd_validator import MESH_CHECKER, mesh_problems, validate_stage, validate_usd
-from sssbake.pipeline.scene import Mesh, Node, Primitive, Scene
+from sssbake.pipeline.scene import Mesh, Node, Scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_usd import icosphere_asset  # noqa: E402
