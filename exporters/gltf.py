@@ -28,6 +28,7 @@ import pygltflib as g
 from ..pipeline.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
 from ..pipeline.scene import SourceMaterial, TextureRef
 from .atomic import atomic_path
+from .finite import check_finite, finite_number
 
 FLOAT, BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT, UNSIGNED_INT = 5126, 5120, 5121, 5122, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -220,13 +221,13 @@ def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
             ))
         extras = {}
         if i in asset.scale_mm:
-            scale = _finite_number(asset.scale_mm[i], f"scale_mm of mesh {mesh.name!r}")
+            scale = finite_number(asset.scale_mm[i], f"scale_mm of mesh {mesh.name!r}")
             extras["sssbake"] = {"schemaVersion": SCHEMA_VERSION, "scaleMm": scale}
         gltf.meshes.append(g.Mesh(name=mesh.name or None, primitives=prims, extras=extras))
 
     for node in scene.nodes:
         matrix = np.asarray(node.matrix, dtype=np.float64)
-        _check_finite(matrix, f"node {node.name!r} matrix")
+        check_finite(matrix, f"node {node.name!r} matrix")
         gltf.nodes.append(g.Node(
             name=node.name or None,
             mesh=node.mesh,
@@ -370,18 +371,6 @@ def _prune(value):
     return value
 
 
-def _check_finite(values: np.ndarray, what: str) -> None:
-    if not np.all(np.isfinite(values)):
-        raise ValueError(f"{what} has non-finite values (NaN or Inf)")
-
-
-def _finite_number(value, what: str) -> float:
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f"{what} is not finite: {value}")
-    return value
-
-
 def _check_attribute_keys(asset: BakedAsset) -> None:
     meshes = asset.scene.meshes
     for i, j in asset.vertex_attributes:
@@ -394,12 +383,12 @@ def _primitive_attributes(packer: _Packer, prim, attrs: tuple[VertexAttribute, .
     out: dict[str, int] = {}
 
     positions = np.asarray(prim.positions, dtype=np.float64)
-    _check_finite(positions, f"{where}: POSITION")
+    check_finite(positions, f"{where}: POSITION")
     out["POSITION"] = packer.accessor(positions.astype(np.float32), FLOAT, False, "vertex", "POSITION",
                                       ARRAY_BUFFER, minmax=True)
     if prim.normals is not None:
         normals = np.asarray(prim.normals, dtype=np.float64)
-        _check_finite(normals, f"{where}: NORMAL")
+        check_finite(normals, f"{where}: NORMAL")
         length = np.linalg.norm(normals, axis=1, keepdims=True)
         if np.any(length == 0.0):
             raise ValueError(f"{where}: NORMAL has zero-length vectors")
@@ -409,7 +398,7 @@ def _primitive_attributes(packer: _Packer, prim, attrs: tuple[VertexAttribute, .
         tangents = np.asarray(prim.tangents, dtype=np.float64)
         if tangents.shape != (n, 4):
             raise ValueError(f"{where}: TANGENT has shape {tangents.shape}, expected ({n}, 4)")
-        _check_finite(tangents, f"{where}: TANGENT")
+        check_finite(tangents, f"{where}: TANGENT")
         length = np.linalg.norm(tangents[:, :3], axis=1, keepdims=True)
         if np.any(length == 0.0):
             raise ValueError(f"{where}: TANGENT has zero-length vectors")
@@ -419,11 +408,11 @@ def _primitive_attributes(packer: _Packer, prim, attrs: tuple[VertexAttribute, .
     for t, uv in enumerate(prim.uvs):
         name = f"TEXCOORD_{t}"
         uv = np.asarray(uv, dtype=np.float64)
-        _check_finite(uv, f"{where}: {name}")
+        check_finite(uv, f"{where}: {name}")
         out[name] = packer.accessor(uv.astype(np.float32), FLOAT, False, "vertex", name, ARRAY_BUFFER)
     if prim.colors is not None:
         colors = np.asarray(prim.colors, dtype=np.float64)
-        _check_finite(colors, f"{where}: COLOR_0")
+        check_finite(colors, f"{where}: COLOR_0")
         out["COLOR_0"] = packer.accessor(colors.astype(np.float32), FLOAT, False, "vertex", "COLOR_0", ARRAY_BUFFER)
 
     for attr in attrs:
@@ -433,7 +422,7 @@ def _primitive_attributes(packer: _Packer, prim, attrs: tuple[VertexAttribute, .
         data = np.asarray(attr.data, dtype=np.float64)
         if data.ndim not in (1, 2) or len(data) != n or (data.ndim == 2 and not 1 <= data.shape[1] <= 4):
             raise ValueError(f"{where}: attribute {name} has shape {data.shape}, expected ({n},) or ({n}, 1..4)")
-        _check_finite(data, f"{where}: attribute {name}")
+        check_finite(data, f"{where}: attribute {name}")
         if attr.encoding not in ENCODINGS:
             raise ValueError(f"{where}: attribute {name} has unknown encoding {attr.encoding!r}")
         component, _, normalized = ENCODINGS[attr.encoding]
@@ -483,34 +472,34 @@ def _material(src: SourceMaterial, scattering: ScatteringMaterial | None) -> tup
     if scattering is None:
         if src.ior is None:
             return material, []
-        material.extensions = {"KHR_materials_ior": {"ior": _finite_number(src.ior, f"material {src.name!r} ior")}}
+        material.extensions = {"KHR_materials_ior": {"ior": finite_number(src.ior, f"material {src.name!r} ior")}}
         return material, ["KHR_materials_ior"]
 
     fb = scattering.fallback
     what = f"material {src.name!r} fallback"
     for field in ("base_color", "attenuation_color", "diffuse_transmission_color"):
-        _check_finite(np.asarray(getattr(fb, field), dtype=np.float64), f"{what} {field}")
+        check_finite(np.asarray(getattr(fb, field), dtype=np.float64), f"{what} {field}")
     if not (scattering.keep_base_color_texture and src.base_color_texture is not None):
         pbr.baseColorFactor = [float(c) for c in fb.base_color] + [1.0]
         pbr.baseColorTexture = None
     # Scattering happens only in dielectrics; glTF's default metallicFactor is 1.
     pbr.metallicFactor = 0.0
     material.doubleSided = False
-    volume: dict = {"thicknessFactor": _finite_number(fb.thickness_factor, f"{what} thickness_factor")}
+    volume: dict = {"thicknessFactor": finite_number(fb.thickness_factor, f"{what} thickness_factor")}
     if fb.thickness_texture is not None:
         volume["thicknessTexture"] = {"index": fb.thickness_texture.texture, "texCoord": fb.thickness_texture.tex_coord}
     # attenuationDistance defaults to +inf (no attenuation), which JSON cannot hold.
     if not math.isinf(fb.attenuation_distance):
-        volume["attenuationDistance"] = _finite_number(fb.attenuation_distance, f"{what} attenuation_distance")
+        volume["attenuationDistance"] = finite_number(fb.attenuation_distance, f"{what} attenuation_distance")
     volume["attenuationColor"] = [float(c) for c in fb.attenuation_color]
     material.extensions = {
         "KHR_materials_volume": volume,
         "KHR_materials_diffuse_transmission": {
-            "diffuseTransmissionFactor": _finite_number(fb.diffuse_transmission_factor,
+            "diffuseTransmissionFactor": finite_number(fb.diffuse_transmission_factor,
                                                         f"{what} diffuse_transmission_factor"),
             "diffuseTransmissionColorFactor": [float(c) for c in fb.diffuse_transmission_color],
         },
-        "KHR_materials_ior": {"ior": _finite_number(fb.ior, f"{what} ior")},
+        "KHR_materials_ior": {"ior": finite_number(fb.ior, f"{what} ior")},
     }
     material.extras = {"sssbake": {
         "schemaVersion": SCHEMA_VERSION,
@@ -533,7 +522,7 @@ def _asset_extras(asset: BakedAsset, packer: _Packer) -> dict:
     for i, value in sorted(asset.scale_mm.items()):
         # Mesh names need not be unique; a repeated name is qualified by the mesh index.
         key = names[i] if names.count(names[i]) == 1 else f"{names[i]}#{i}"
-        scale[key] = _finite_number(value, f"scale_mm of mesh {names[i]!r}")
+        scale[key] = finite_number(value, f"scale_mm of mesh {names[i]!r}")
     extras["scaleMm"] = scale
 
     described: dict[str, dict] = {}
@@ -576,7 +565,7 @@ def _table(array: np.ndarray, packer: _Packer, where: str) -> int:
         raise ValueError(f"{where}: a table must have shape (n,), (n, 1..4) or (n, k, k) with k in 2..4 "
                          f"and n > 0, got {array.shape}")
     if array.dtype.kind == "f":
-        _check_finite(array, where)
+        check_finite(array, where)
         return packer.accessor(array.astype(np.float32), FLOAT, False, "table", "tables")
     if array.dtype.kind in "iu" and (array.min() >= 0 and array.max() <= np.iinfo(np.uint32).max):
         return packer.accessor(array.astype(np.uint32), UNSIGNED_INT, False, "table", "tables")

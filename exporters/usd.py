@@ -41,6 +41,7 @@ from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 from ..pipeline.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
 from ..pipeline.scene import Primitive, SourceMaterial
 from .atomic import atomic_path
+from .finite import check_finite, finite_number
 from .gltf import generator
 
 #: Prefix of every sssbake attribute and primvar namespace.
@@ -58,10 +59,10 @@ def meters_per_unit(asset: BakedAsset) -> float:
     assets whose meshes share one scale); otherwise 1 (glTF's metres).
     """
     if asset.scene.meters_per_unit is not None:
-        return _finite_number(asset.scene.meters_per_unit, "scene meters_per_unit")
+        return finite_number(asset.scene.meters_per_unit, "scene meters_per_unit")
     if asset.scale_mm:
         first = min(asset.scale_mm)
-        return _finite_number(asset.scale_mm[first], f"scale_mm of mesh {first}") / 1000.0
+        return finite_number(asset.scale_mm[first], f"scale_mm of mesh {first}") / 1000.0
     return 1.0
 
 
@@ -118,7 +119,7 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
         path = parent.AppendChild(_unique(_identifier(node.name, f"node{i}"), taken.setdefault(parent, set())))
         xform = UsdGeom.Xform.Define(stage, path)
         matrix = np.asarray(node.matrix, dtype=np.float64)
-        _check_finite(matrix, f"node {node.name!r} matrix")
+        check_finite(matrix, f"node {node.name!r} matrix")
         if not np.array_equal(matrix, np.eye(4)):
             xform.AddTransformOp().Set(Gf.Matrix4d(matrix.T.tolist()))
         if node.mesh is not None:
@@ -130,7 +131,7 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
                 where = f"mesh {mesh.name!r} primitive {j}"
                 usd_mesh = _mesh(stage, mesh_path, prim, asset.vertex_attributes.get((node.mesh, j), ()), where, acc)
                 if node.mesh in asset.scale_mm:
-                    scale = _finite_number(asset.scale_mm[node.mesh], f"scale_mm of mesh {mesh.name!r}")
+                    scale = finite_number(asset.scale_mm[node.mesh], f"scale_mm of mesh {mesh.name!r}")
                     attribute = usd_mesh.GetPrim().CreateAttribute(SSS + "scaleMm", Sdf.ValueTypeNames.Double, custom=True)
                     attribute.Set(scale)
                 if prim.material is not None:
@@ -201,7 +202,7 @@ def _mesh(stage: Usd.Stage, path: Sdf.Path, prim: Primitive, attrs: tuple[Vertex
     primvars: list[tuple[str, Sdf.ValueTypeName, np.ndarray, int | None, dict]] = []
     if prim.normals is not None:
         normals = np.asarray(prim.normals, dtype=np.float64)
-        _check_finite(normals, f"{where}: normals")
+        check_finite(normals, f"{where}: normals")
         length = np.linalg.norm(normals, axis=-1, keepdims=True)
         if np.any(length == 0.0):
             raise ValueError(f"{where}: normals have zero-length vectors")
@@ -305,14 +306,14 @@ def _surface_inputs(src: SourceMaterial, scattering: ScatteringMaterial | None) 
     base = scattering.fallback.base_color if scattering is not None else src.base_color_factor[:3]
     inputs = [
         ("diffuseColor", Sdf.ValueTypeNames.Color3f, Gf.Vec3f(*_vec3(base, f"{what} base color"))),
-        ("roughness", Sdf.ValueTypeNames.Float, _finite_number(src.roughness_factor, f"{what} roughness")),
-        ("metallic", Sdf.ValueTypeNames.Float, _finite_number(src.metallic_factor, f"{what} metallic")),
-        ("opacity", Sdf.ValueTypeNames.Float, _finite_number(src.base_color_factor[3], f"{what} opacity")),
+        ("roughness", Sdf.ValueTypeNames.Float, finite_number(src.roughness_factor, f"{what} roughness")),
+        ("metallic", Sdf.ValueTypeNames.Float, finite_number(src.metallic_factor, f"{what} metallic")),
+        ("opacity", Sdf.ValueTypeNames.Float, finite_number(src.base_color_factor[3], f"{what} opacity")),
         ("emissiveColor", Sdf.ValueTypeNames.Color3f, Gf.Vec3f(*_vec3(src.emissive_factor, f"{what} emissive"))),
     ]
     ior = scattering.fallback.ior if scattering is not None else src.ior
     if ior is not None:
-        inputs.append(("ior", Sdf.ValueTypeNames.Float, _finite_number(ior, f"{what} ior")))
+        inputs.append(("ior", Sdf.ValueTypeNames.Float, finite_number(ior, f"{what} ior")))
     return inputs
 
 
@@ -335,20 +336,20 @@ def _scattering_attributes(scattering: ScatteringMaterial, what: str) -> list[tu
         (SSS + "units", T.String, "1/mm"),
         (SSS + "sigmaSPrime", T.Float3, Gf.Vec3f(*_vec3(mat.sigma_s_prime, f"{what} sigma_s_prime"))),
         (SSS + "sigmaA", T.Float3, Gf.Vec3f(*_vec3(mat.sigma_a, f"{what} sigma_a"))),
-        (SSS + "eta", T.Float, _finite_number(mat.eta, f"{what} eta")),
+        (SSS + "eta", T.Float, finite_number(mat.eta, f"{what} eta")),
         (SSS + "fallback:baseColor", T.Color3f, Gf.Vec3f(*_vec3(fb.base_color, f"{what} fallback base_color"))),
-        (SSS + "fallback:thicknessFactor", T.Float, _finite_number(fb.thickness_factor, f"{what} thickness_factor")),
+        (SSS + "fallback:thicknessFactor", T.Float, finite_number(fb.thickness_factor, f"{what} thickness_factor")),
         (SSS + "fallback:attenuationColor", T.Color3f,
          Gf.Vec3f(*_vec3(fb.attenuation_color, f"{what} attenuation_color"))),
         (SSS + "fallback:diffuseTransmissionFactor", T.Float,
-         _finite_number(fb.diffuse_transmission_factor, f"{what} diffuse_transmission_factor")),
+         finite_number(fb.diffuse_transmission_factor, f"{what} diffuse_transmission_factor")),
         (SSS + "fallback:diffuseTransmissionColor", T.Color3f,
          Gf.Vec3f(*_vec3(fb.diffuse_transmission_color, f"{what} diffuse_transmission_color"))),
-        (SSS + "fallback:ior", T.Float, _finite_number(fb.ior, f"{what} fallback ior")),
+        (SSS + "fallback:ior", T.Float, finite_number(fb.ior, f"{what} fallback ior")),
     ]
     if fb.attenuation_distance != math.inf:
         out.append((SSS + "fallback:attenuationDistance", T.Float,
-                    _finite_number(fb.attenuation_distance, f"{what} attenuation_distance")))
+                    finite_number(fb.attenuation_distance, f"{what} attenuation_distance")))
     return out
 
 
@@ -439,17 +440,7 @@ def _vec3(values, what: str) -> tuple[float, float, float]:
     arr = np.asarray(values, dtype=np.float64).reshape(-1)
     if arr.size != 3:
         raise ValueError(f"{what} needs 3 values, got {arr.size}")
-    _check_finite(arr, what)
+    check_finite(arr, what)
     return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
-def _check_finite(values: np.ndarray, what: str) -> None:
-    if not np.all(np.isfinite(values)):
-        raise ValueError(f"{what} has non-finite values (NaN or Inf)")
-
-
-def _finite_number(value, what: str) -> float:
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f"{what} is not finite: {value}")
-    return value

@@ -1,7 +1,6 @@
 """End to end through the command line: the bundled samples, the bad-input corpus, inspect."""
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
@@ -9,10 +8,8 @@ from pxr import Usd
 
 from sssbake.pipeline.cli import main
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "samples"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bad_inputs import write_bad_inputs  # noqa: E402
-from generate import generate  # noqa: E402
+from bad_inputs import write_bad_inputs
+from generate import generate
 
 
 @pytest.fixture(scope="module")

@@ -2,6 +2,7 @@
 
 import io
 import json
+from dataclasses import replace
 from importlib import resources
 
 import jsonschema
@@ -24,9 +25,11 @@ from sssbake.exporters.gltf import (
     to_glb,
     write_glb,
 )
-from sssbake.pipeline.baked import SCHEMA_VERSION, BakedAsset, Fallback, ScatteringMaterial, VertexAttribute
+from sssbake.pipeline.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
 from sssbake.pipeline.materials import preset
 from sssbake.pipeline.scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef
+
+from fixtures import FALLBACK
 
 
 def png_bytes(width: int = 4, height: int = 4) -> bytes:
@@ -67,16 +70,7 @@ def icosphere_asset(subdivisions: int = 1, double_sided: bool = False, extras: d
         textures=(Texture(0, mag_filter=9729, min_filter=9987), Texture(1)),
         images=(Image("glow", "image/png", png_bytes()), Image("thickness", "image/png", png_bytes(8, 8))),
     )
-    fallback = Fallback(
-        base_color=(0.83, 0.79, 0.75),
-        thickness_texture=TextureRef(1, 1),
-        thickness_factor=2.0,
-        attenuation_color=(0.9, 0.8, 0.7),
-        attenuation_distance=4.0,
-        diffuse_transmission_factor=0.4,
-        diffuse_transmission_color=(1.0, 0.95, 0.9),
-        ior=1.5,
-    )
+    fallback = replace(FALLBACK, thickness_texture=TextureRef(1, 1))
     t = np.linspace(0.0, 1.0, n)
     attrs = (
         VertexAttribute("thickness", 2.0 * np.sin(7 * t) ** 2, "mm", "float32", "thickness along -n"),

@@ -1,8 +1,5 @@
 """The Khronos glTF-Validator accepts sssbake's output and catches broken files."""
 
-import importlib.util
-import shutil
-from pathlib import Path
 
 import numpy as np
 import pygltflib
@@ -11,27 +8,7 @@ import pytest
 from sssbake.exporters import gltf_validator
 from sssbake.exporters.gltf import UNSIGNED_INT, to_glb, write_glb
 from sssbake.exporters.gltf_validator import ValidatorUnavailable, find_validator, validate_glb, validate_many
-
-
-def _fixtures():
-    # Tests are imported by path (--import-mode=importlib), so the shared builders are too.
-    spec = importlib.util.spec_from_file_location("_gltf_fixtures", Path(__file__).with_name("test_gltf.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def _validator_missing() -> str:
-    if shutil.which("node") is None:
-        return "node is not installed (install Node.js, then `npm install gltf-validator`)"
-    try:
-        find_validator()
-    except ValidatorUnavailable as exc:
-        return str(exc)
-    return ""
-
-
-needs_validator = pytest.mark.skipif(bool(_validator_missing()), reason=_validator_missing() or "available")
+from test_gltf import icosphere_asset
 
 
 def _broken(data: bytes, how: str) -> bytes:
@@ -45,12 +22,10 @@ def _broken(data: bytes, how: str) -> bytes:
     return b"".join(gltf.save_to_bytes())
 
 
-@needs_validator
 def test_export_is_clean_and_broken_files_are_caught(tmp_path):
-    fixtures = _fixtures()
     path = tmp_path / "sphere.glb"
-    write_glb(fixtures.icosphere_asset(double_sided=True), path)
-    good_bytes, _ = to_glb(fixtures.icosphere_asset(extras={"table": np.eye(3)}))
+    write_glb(icosphere_asset(double_sided=True), path)
+    good_bytes, _ = to_glb(icosphere_asset(extras={"table": np.eye(3)}))
     # one node process for all four: node's start-up dominates
     clean, with_table, unsigned, unbounded = validate_many([
         path, good_bytes, _broken(good_bytes, "unsigned_int_attribute"), _broken(good_bytes, "no_bounds"),
@@ -72,7 +47,6 @@ def test_export_is_clean_and_broken_files_are_caught(tmp_path):
     assert unbounded.to_json()["numErrors"] == unbounded.num_errors >= 1
 
 
-@needs_validator
 def test_garbage_is_reported_as_an_error():
     with pytest.raises(RuntimeError, match="could not validate|failed"):
         validate_glb(b"not a gltf file")

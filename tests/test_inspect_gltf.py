@@ -1,23 +1,13 @@
 """inspect_glb reports the sssbake content and bytes per vertex of a written file."""
 
-import importlib.util
-from pathlib import Path
-
 from sssbake.exporters.gltf import write_glb
 from sssbake.exporters.inspect_gltf import inspect_glb
 from sssbake.pipeline.baked import SCHEMA_VERSION
-
-
-def _fixtures():
-    # Tests are imported by path (--import-mode=importlib), so the shared builders are too.
-    spec = importlib.util.spec_from_file_location("_gltf_fixtures", Path(__file__).with_name("test_gltf.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from test_gltf import icosphere_asset
 
 
 def test_inspect_reports_attributes_and_bytes_per_vertex(tmp_path):
-    asset = _fixtures().icosphere_asset()
+    asset = icosphere_asset()
     summary = write_glb(asset, tmp_path / "a.glb")
     info = inspect_glb(tmp_path / "a.glb")
 

@@ -1,7 +1,5 @@
 """inspect_usdc: the sssbake content of a .usdc, with bytes per vertex."""
 
-import sys
-from pathlib import Path
 
 import pytest
 
@@ -9,8 +7,7 @@ from sssbake.exporters.inspect_usd import inspect_usdc
 from sssbake.exporters.usd import write_usdc
 from sssbake.pipeline.baked import SCHEMA_VERSION
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_usd import icosphere_asset  # noqa: E402
+from test_usd import icosphere_asset
 
 
 def test_inspect_our_output(tmp_path):

@@ -2,7 +2,6 @@
 
 import pickle
 import struct
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,8 +9,7 @@ import pytest
 
 from sssbake.pipeline.load import SUPPORTED_EXTENSIONS, AssetError, load_scene
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bad_inputs import write_bad_inputs  # noqa: E402
+from bad_inputs import write_bad_inputs
 
 ASSETS = Path("/work/shared/assets")
 

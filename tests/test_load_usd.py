@@ -1,6 +1,5 @@
 """USD reader: our own output reads back; hand-written stages triangulate; bad files are one-line AssetErrors."""
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,8 +9,7 @@ from sssbake.exporters.usd import write_usdc
 from sssbake.pipeline.load import AssetError, load_scene
 from sssbake.pipeline.load_usd import load_usd
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_usd import FALLBACK, icosphere_asset  # noqa: E402
+from test_usd import FALLBACK, icosphere_asset
 
 QUADS = """#usda 1.0
 (

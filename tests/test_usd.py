@@ -9,20 +9,12 @@ import trimesh
 from pxr import Usd, UsdGeom, UsdShade
 
 from sssbake.exporters.usd import meters_per_unit, write_usdc
-from sssbake.pipeline.baked import SCHEMA_VERSION, BakedAsset, Fallback, ScatteringMaterial, VertexAttribute
+from sssbake.pipeline.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
 from sssbake.pipeline.materials import preset
 from sssbake.pipeline.scene import Mesh, Node, Primitive, Scene, SourceMaterial
 
-FALLBACK = Fallback(
-    base_color=(0.83, 0.79, 0.75),
-    thickness_texture=None,
-    thickness_factor=2.0,
-    attenuation_color=(0.9, 0.8, 0.7),
-    attenuation_distance=4.0,
-    diffuse_transmission_factor=0.4,
-    diffuse_transmission_color=(1.0, 0.95, 0.9),
-    ior=1.5,
-)
+from fixtures import FALLBACK
+
 
 
 def icosphere_asset(subdivisions: int = 1, extras: dict | None = None) -> BakedAsset:

@@ -1,6 +1,5 @@
 """USD validation: our output is clean; real problems are reported as errors."""
 
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,8 +10,7 @@ from sssbake.exporters.usd import write_usdc
 from sssbake.exporters.usd_validator import MESH_CHECKER, mesh_problems, validate_stage, validate_usd
 from sssbake.pipeline.scene import Mesh, Node, Scene
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_usd import icosphere_asset  # noqa: E402
+from test_usd import icosphere_asset
 
 
 def minimal_stage(path: Path, binding_api: bool = True, metadata: bool = True) -> Path:
