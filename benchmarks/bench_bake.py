@@ -42,6 +42,9 @@ def main() -> None:
             print(f"{name:<14}{'skipped':>9}  ({s['skipped']})")
             continue
         print(f"{name:<14}{s['seconds']:>9.2f}{s.get('peak_traced_mb', 0.0):>16.1f}{s['peak_rss_mb']:>21.1f}")
+    for mesh, a in r["atlas"].items():
+        print(f"atlas {mesh!r}: {a['width']}x{a['height']} texels, {a['charts']} charts, "
+              f"xatlas child peak RSS {a['xatlas_peak_rss_mb']} MB")
     print("output bytes:", json.dumps(sizes))
     print("validation:", json.dumps(r["validation"]))
 

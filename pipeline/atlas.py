@@ -72,6 +72,8 @@ class Atlas:
         Charts over all parts.
     jittered : bool
         Whether the first xatlas run crashed and this atlas comes from the jittered retry.
+    worker_peak_rss_mb : float
+        Peak resident memory of the xatlas child process (NaN where the OS does not say).
     """
 
     parts: tuple[AtlasPart, ...]
@@ -79,6 +81,7 @@ class Atlas:
     height: int
     chart_count: int
     jittered: bool
+    worker_peak_rss_mb: float
 
 
 def compute_atlas(
@@ -186,4 +189,5 @@ def _read_result(path: Path, n_parts: int, jittered: bool) -> Atlas:
             height=int(data["height"]),
             chart_count=int(data["chart_count"]),
             jittered=jittered,
+            worker_peak_rss_mb=float(data["peak_rss_mb"]),
         )

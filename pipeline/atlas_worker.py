@@ -4,8 +4,8 @@ very regular meshes) must not take the batch down with them.
 Usage: ``python -m sssbake.pipeline.atlas_worker IN.npz OUT.npz ATTEMPT``.
 
 ``IN.npz`` holds ``resolution``, ``padding``, ``n_parts`` and per part ``positions_<i>`` (float32)
-and ``faces_<i>`` (uint32). ``OUT.npz`` gets ``width``, ``height``, ``chart_count`` and per part
-``vmapping_<i>``, ``faces_<i>``, ``uvs_<i>``.
+and ``faces_<i>`` (uint32). ``OUT.npz`` gets ``width``, ``height``, ``chart_count``, ``peak_rss_mb``
+and per part ``vmapping_<i>``, ``faces_<i>``, ``uvs_<i>``.
 
 The environment variable ``SSSBAKE_ATLAS_TEST_CRASHES=k`` makes attempts ``0 .. k-1`` die by
 SIGSEGV before xatlas runs, so the parent's retry and error paths can be tested deterministically.
@@ -21,6 +21,19 @@ import numpy as np
 import xatlas
 
 CRASH_ENV = "SSSBAKE_ATLAS_TEST_CRASHES"
+
+
+def _peak_rss_mb() -> float:
+    """This process's resident high-water mark. VmHWM belongs to the address space made at exec, so
+    unlike ru_maxrss it does not count the parent's pages the child held before exec."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")  # no procfs: unknown, reported as null
 
 
 def main(argv: list[str]) -> None:
@@ -42,6 +55,7 @@ def main(argv: list[str]) -> None:
         "width": np.int64(atlas.width),
         "height": np.int64(atlas.height),
         "chart_count": np.int64(atlas.chart_count),
+        "peak_rss_mb": np.float64(_peak_rss_mb()),
     }
     for i in range(n_parts):
         vmapping, faces, uvs = atlas[i]

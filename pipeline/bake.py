@@ -34,7 +34,7 @@ from .thickness import bake_thickness
 from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
-STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 1, "thickness": 1, "thickness_map": 1}
+STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1}
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
 
@@ -173,6 +173,7 @@ def bake_asset(
     scattering: dict[int, ScatteringMaterial] = {}
     scale_mm: dict[int, float] = {}
     sizes: dict[str, list] = {}
+    atlases: dict[str, dict] = {}
     for mi, mesh in enumerate(scene.meshes):
         mesh_mm = mm_per_unit * _instance_scale(scene, mi, warnings)
         scale_mm[mi] = mesh_mm
@@ -189,6 +190,11 @@ def bake_asset(
             {"resolution": options.atlas_resolution, "padding": options.atlas_padding},
             compute_atlas, parts, options.atlas_resolution, options.atlas_padding,
         )
+        atlases[mesh.name] = {
+            "width": atlas.width, "height": atlas.height, "charts": atlas.chart_count, "jittered": atlas.jittered,
+            # The child's own peak (a cached atlas reports the run that made it): the parent's RSS misses it.
+            "xatlas_peak_rss_mb": round(atlas.worker_peak_rss_mb, 1) if np.isfinite(atlas.worker_peak_rss_mb) else None,
+        }
         cap = float(np.linalg.norm(np.ptp(surface.positions, axis=0)))
         thick, _ = runner.run(
             "thickness", STAGE_VERSIONS["thickness"], mesh_key, {"rays": options.thickness_rays},
@@ -266,6 +272,7 @@ def bake_asset(
                 if i in {p.material for mesh in scene.meshes for p in mesh.primitives}
             },
             "sizes": sizes,
+            "atlas": atlases,
             "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"}
                       for fmt, summary in (("glb", glb_summary), ("usdc", usd_summary))},
             "validation": validation,

@@ -1,3 +1,5 @@
+import resource
+
 import numpy as np
 import pytest
 import trimesh
@@ -37,6 +39,12 @@ def test_uvs_in_unit_square_and_size(atlas):
         assert part.uvs.min() >= 0.0 and part.uvs.max() <= 1.0
     assert atlas.width > 0 and atlas.height > 0
     assert atlas.chart_count >= 2 and not atlas.jittered
+
+
+def test_worker_reports_its_own_peak_memory(atlas):
+    # A Python child with numpy and xatlas loaded holds tens of MB, far below the parent's pages.
+    parent_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    assert 10.0 < atlas.worker_peak_rss_mb < max(parent_mb, 200.0)
 
 
 def test_matches_xatlas_in_process(parts, atlas):
