@@ -40,6 +40,8 @@ ENCODINGS: dict[str, tuple[int, type, bool]] = {
     "snorm16": (SHORT, np.int16, True),
     "unorm8": (UNSIGNED_BYTE, np.uint8, True),
     "unorm16": (UNSIGNED_SHORT, np.uint16, True),
+    # Plain integers (indices). glTF forbids UNSIGNED_INT vertex attributes, so 16 bits is the widest.
+    "uint16": (UNSIGNED_SHORT, np.uint16, False),
 }
 COMPONENT_DTYPES = {
     FLOAT: np.float32, BYTE: np.int8, UNSIGNED_BYTE: np.uint8, SHORT: np.int16,
@@ -85,9 +87,13 @@ def quantize(data: np.ndarray, encoding: str) -> np.ndarray:
     (n,) or (n, k) array of the encoding's storage dtype.
     """
     _, dtype, normalized = ENCODINGS[encoding]
-    if not normalized:
+    if np.dtype(dtype).kind == "f":
         return np.asarray(data, dtype=np.float32)
     info = np.iinfo(dtype)
+    if not normalized:
+        if data.size and (data.min() < info.min or data.max() > info.max or np.any(data != np.round(data))):
+            raise ValueError(f"{encoding} needs integers in [{info.min}, {info.max}], got [{data.min():g}, {data.max():g}]")
+        return np.asarray(data).astype(dtype)
     low = -1.0 if info.min < 0 else 0.0
     if data.size and (data.min() < low or data.max() > 1.0):
         raise ValueError(f"{encoding} needs values in [{low:g}, 1], got [{data.min():g}, {data.max():g}]")
@@ -220,9 +226,15 @@ def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
                 mode=g.TRIANGLES,
             ))
         extras = {}
-        if i in asset.scale_mm:
-            scale = finite_number(asset.scale_mm[i], f"scale_mm of mesh {mesh.name!r}")
-            extras["sssbake"] = {"schemaVersion": SCHEMA_VERSION, "scaleMm": scale}
+        if i in asset.scale_mm or i in asset.mesh_extras:
+            extras["sssbake"] = {"schemaVersion": SCHEMA_VERSION}
+            if i in asset.scale_mm:
+                extras["sssbake"]["scaleMm"] = finite_number(asset.scale_mm[i], f"scale_mm of mesh {mesh.name!r}")
+            data = asset.mesh_extras.get(i, {})
+            clash = sorted(set(data) & set(extras["sssbake"]))
+            if clash:
+                raise ValueError(f"mesh {mesh.name!r} extras use reserved keys {clash}")
+            extras["sssbake"].update(_json_value(data, packer, f"mesh {mesh.name!r} extras"))
         gltf.meshes.append(g.Mesh(name=mesh.name or None, primitives=prims, extras=extras))
 
     for node in scene.nodes:
@@ -551,8 +563,14 @@ def _json_value(value, packer: _Packer, where: str):
     return value
 
 
+#: Integer table dtypes stored as they are; other integer dtypes become UNSIGNED_INT.
+_TABLE_COMPONENTS = {np.dtype(np.uint8): UNSIGNED_BYTE, np.dtype(np.int8): BYTE,
+                     np.dtype(np.uint16): UNSIGNED_SHORT, np.dtype(np.int16): SHORT}
+
+
 def _table(array: np.ndarray, packer: _Packer, where: str) -> int:
-    """Write a table: float -> FLOAT, non-negative integers -> UNSIGNED_INT.
+    """Write a table: float -> FLOAT, (u)int8/(u)int16 as they are, other non-negative integers ->
+    UNSIGNED_INT.
 
     Shapes (n,), (n, k) with k <= 4, and (n, k, k) with k in 2..4 (MATk) are accepted.
     """
@@ -567,6 +585,8 @@ def _table(array: np.ndarray, packer: _Packer, where: str) -> int:
     if array.dtype.kind == "f":
         check_finite(array, where)
         return packer.accessor(array.astype(np.float32), FLOAT, False, "table", "tables")
+    if array.dtype in _TABLE_COMPONENTS:
+        return packer.accessor(array, _TABLE_COMPONENTS[array.dtype], False, "table", "tables")
     if array.dtype.kind in "iu" and (array.min() >= 0 and array.max() <= np.iinfo(np.uint32).max):
         return packer.accessor(array.astype(np.uint32), UNSIGNED_INT, False, "table", "tables")
     raise ValueError(f"{where}: a table must hold floats or integers in [0, 2^32), got dtype {array.dtype}")

@@ -13,7 +13,7 @@ Layout of the file (one self-contained crate file):
   interpolation), extent, subdivisionScheme ``none``, ``primvars:st``, ``primvars:st1``, ... from
   TEXCOORD_0, 1, ... (v flipped back to USD's bottom-up convention), displayColor/displayOpacity
   from the vertex colours, and ``sss:scaleMm`` (double, mm per file unit) when the asset has it;
-- each `VertexAttribute` as a float[] primvar ``primvars:sss:<key>`` with vertex interpolation,
+- each `VertexAttribute` as a float[] (int[] for ``uint16``) primvar (`VertexAttribute.usd_name`) with vertex interpolation,
   ``elementSize`` k for (n, k) data, the unit and description in its ``customData`` (``unit``,
   ``description``) and the description as its documentation;
 - materials under ``/<Root>/Materials``: a Material with one UsdPreviewSurface shader, bound with
@@ -21,7 +21,9 @@ Layout of the file (one self-contained crate file):
   ``sss:`` attributes listed in `_scattering_attributes`;
 - on the root prim ``sss:schemaVersion`` and ``sss:extras`` (`BakedAsset.extras` as a JSON string);
   numpy arrays in the extras become ``sss:tables:t<i>`` array attributes referenced in the JSON
-  as ``{"attribute": "sss:tables:t<i>", "shape": [...]}``.
+  as ``{"attribute": "sss:tables:t<i>", "shape": [...]}``;
+- on each Mesh prim of a mesh with `BakedAsset.mesh_extras` (technique data such as prt), its own
+  ``sss:extras`` JSON and ``sss:tables:t<i>`` attributes, the same way;
 
 Textures are not written: a .usdc cannot embed images, and files next to it would break the
 one-file output. Everything is float32 except matrices and ``sss:scaleMm`` (double).
@@ -106,7 +108,7 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
     stage.SetDefaultPrim(root)
     Usd.ModelAPI(root).SetKind(Kind.Tokens.component)
     _string_attribute(root, SSS + "schemaVersion", SCHEMA_VERSION)
-    _string_attribute(root, SSS + "extras", _extras_json(asset.extras, root))
+    _string_attribute(root, SSS + "extras", _extras_json(asset.extras, root, "extras"))
 
     materials = _materials(stage, root_path.AppendChild(MATERIALS_SCOPE), asset)
 
@@ -134,6 +136,10 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
                     scale = finite_number(asset.scale_mm[node.mesh], f"scale_mm of mesh {mesh.name!r}")
                     attribute = usd_mesh.GetPrim().CreateAttribute(SSS + "scaleMm", Sdf.ValueTypeNames.Double, custom=True)
                     attribute.Set(scale)
+                if node.mesh in asset.mesh_extras:
+                    extras_json = _extras_json(asset.mesh_extras[node.mesh], usd_mesh.GetPrim(),
+                                               f"mesh {mesh.name!r} extras")
+                    _string_attribute(usd_mesh.GetPrim(), SSS + "extras", extras_json)
                 if prim.material is not None:
                     src = scene.materials[prim.material]
                     if src.double_sided and prim.material not in asset.scattering:
@@ -229,7 +235,12 @@ def _mesh(stage: Usd.Stage, path: Sdf.Path, prim: Primitive, attrs: tuple[Vertex
             raise ValueError(f"{where}: attribute {attr.usd_name} has shape {data.shape}, expected (n,) or (n, k)")
         size = data.shape[1] if data.ndim == 2 else None
         meta = {"unit": attr.unit, "description": attr.description}
-        primvars.append((name, Sdf.ValueTypeNames.FloatArray, data.reshape(-1), size, meta))
+        type_name = Sdf.ValueTypeNames.FloatArray
+        if attr.encoding == "uint16":
+            if data.size and (data.min() < 0 or data.max() > 65535 or np.any(data != np.round(data))):
+                raise ValueError(f"{where}: attribute {attr.usd_name} needs integers in [0, 65535]")
+            data, type_name = data.astype(np.int32), Sdf.ValueTypeNames.IntArray
+        primvars.append((name, type_name, data.reshape(-1), size, meta))
 
     vt_points = Vt.Vec3fArray.FromNumpy(positions)
     vt_normals = None if prim.normals is None else _vt_checked(
@@ -353,7 +364,7 @@ def _scattering_attributes(scattering: ScatteringMaterial, what: str) -> list[tu
     return out
 
 
-def _extras_json(extras: dict, root: Usd.Prim) -> str:
+def _extras_json(extras: dict, root: Usd.Prim, where: str) -> str:
     """`extras` as JSON; numpy arrays become ``sss:tables:t<i>`` attributes on `root`."""
     tables: list[Usd.Attribute] = []
 
@@ -372,15 +383,20 @@ def _extras_json(extras: dict, root: Usd.Prim) -> str:
             raise ValueError(f"{where} is not finite: {value}")
         return value
 
-    return json.dumps(convert(extras, "extras"), sort_keys=True, allow_nan=False)
+    return json.dumps(convert(extras, where), sort_keys=True, allow_nan=False)
 
 
 def _table(root: Usd.Prim, name: str, array: np.ndarray, where: str) -> Usd.Attribute:
-    """A table as a flat float[] (float32) or uint[] attribute; customData holds its shape."""
+    """A table as a flat float[] (float32), uchar[] (uint8), int[] (int8, int16) or uint[] attribute;
+    customData holds its shape."""
     if array.size == 0:
         raise ValueError(f"{where}: a table must not be empty, got shape {array.shape}")
     if array.dtype.kind == "f":
         values, type_name = Vt.FloatArray.FromNumpy(_float32(array, where).reshape(-1)), Sdf.ValueTypeNames.FloatArray
+    elif array.dtype == np.uint8:
+        values, type_name = Vt.UCharArray.FromNumpy(array.reshape(-1)), Sdf.ValueTypeNames.UCharArray
+    elif array.dtype in (np.int8, np.int16):
+        values, type_name = Vt.IntArray.FromNumpy(array.astype(np.int32).reshape(-1)), Sdf.ValueTypeNames.IntArray
     elif array.dtype.kind in "iu" and array.min() >= 0 and array.max() <= np.iinfo(np.uint32).max:
         values, type_name = Vt.UIntArray.FromNumpy(array.astype(np.uint32).reshape(-1)), Sdf.ValueTypeNames.UIntArray
     else:

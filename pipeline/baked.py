@@ -20,7 +20,9 @@ class VertexAttribute:
     """A per-vertex array of sssbake data.
 
     The key names the data in every format: glTF attribute ``"_" + key.upper()`` with ``:``
-    turned into ``_`` (``thickness`` → ``_THICKNESS``), USD primvar ``primvars:sss:<key>``.
+    turned into ``_`` (``thickness`` → ``_THICKNESS``, ``sss:prt:ref`` → ``_SSS_PRT_REF``), USD
+    primvar ``primvars:sss:<key>`` with an ``sss:`` prefix of the key not repeated
+    (``primvars:sss:thickness``, ``primvars:sss:prt:ref``).
 
     Attributes
     ----------
@@ -30,8 +32,9 @@ class VertexAttribute:
     unit : str
         e.g. ``"mm"``; ``""`` for unitless.
     encoding : str
-        How glTF stores it: ``"float32"``, or a normalized type ``"snorm8"``, ``"snorm16"``,
-        ``"unorm8"``, ``"unorm16"`` (data must then lie in [-1, 1] or [0, 1]). USD stores float32.
+        How glTF stores it: ``"float32"``, a normalized type ``"snorm8"``, ``"snorm16"``,
+        ``"unorm8"``, ``"unorm16"`` (data must then lie in [-1, 1] or [0, 1]), or ``"uint16"``
+        (integers in [0, 65535], e.g. indices). USD stores int[] for ``"uint16"``, float[] otherwise.
     description : str
     """
 
@@ -47,7 +50,7 @@ class VertexAttribute:
 
     @property
     def usd_name(self) -> str:
-        return "primvars:sss:" + self.key
+        return "primvars:sss:" + self.key.removeprefix("sss:")
 
 
 @dataclass(frozen=True)
@@ -109,6 +112,10 @@ class BakedAsset:
         Mesh index -> millimetres per file unit in world space (node scale included).
     extras : dict
         Asset-level JSON written under ``extras.sssbake`` (schema version added by exporters).
+    mesh_extras : dict
+        Mesh index -> JSON-able dict of technique data for that mesh (e.g. ``{"prt": {...}}``),
+        written into the mesh's ``extras.sssbake`` (glTF) and onto each of its USD Mesh prims.
+        Numpy arrays in it become binary tables (glTF accessors, USD array attributes).
     """
 
     scene: Scene
@@ -116,3 +123,4 @@ class BakedAsset:
     scattering: dict[int, ScatteringMaterial] = field(default_factory=dict)
     scale_mm: dict[int, float] = field(default_factory=dict)
     extras: dict = field(default_factory=dict)
+    mesh_extras: dict[int, dict] = field(default_factory=dict)

@@ -380,3 +380,34 @@ def test_scattering_materials_are_dielectric():
     # Written explicitly: an absent metallicFactor means 1.
     assert doc["materials"][0]["pbrMetallicRoughness"]["metallicFactor"] == 0.0
     assert doc["materials"][1]["pbrMetallicRoughness"]["metallicFactor"] == 1.0
+
+
+def test_mesh_extras_and_integer_encodings_round_trip():
+    codes = (np.arange(30) % 256).astype(np.uint8).reshape(10, 3)
+    signed = np.array([[-128, 127], [0, -1]], dtype=np.int8)
+    asset = icosphere_asset()
+    n = len(asset.scene.meshes[0].primitives[0].positions)
+    index = VertexAttribute("sss:prt:ref", np.c_[np.arange(n) % 7, np.full(n, 65535)], "", "uint16", "indices")
+    asset = replace(asset, vertex_attributes={(0, 0): asset.vertex_attributes[(0, 0)] + (index,)},
+                    mesh_extras={0: {"prt": {"codes": codes, "signed": signed, "order": 3}}})
+    gltf = pygltflib.GLTF2.load_from_bytes(to_glb(asset)[0])
+    mesh = gltf.meshes[0].extras["sssbake"]
+    assert mesh["scaleMm"] == 10.0 and mesh["prt"]["order"] == 3
+    stored = read_accessor(gltf, mesh["prt"]["codes"]["accessor"])
+    assert stored.dtype == np.uint8 and gltf.accessors[mesh["prt"]["codes"]["accessor"]].type == "VEC3"
+    np.testing.assert_array_equal(stored, codes)
+    np.testing.assert_array_equal(read_accessor(gltf, mesh["prt"]["signed"]["accessor"]), signed)
+    ref = gltf.meshes[0].primitives[0].attributes._SSS_PRT_REF
+    assert gltf.accessors[ref].componentType == UNSIGNED_SHORT and not gltf.accessors[ref].normalized
+    np.testing.assert_array_equal(read_accessor(gltf, ref), index.data)
+
+
+def test_uint16_attributes_must_be_integers_in_range():
+    asset = icosphere_asset()
+    n = len(asset.scene.meshes[0].primitives[0].positions)
+    for bad in (np.full(n, 65536.0), np.full(n, 0.5), np.full(n, -1.0)):
+        attr = VertexAttribute("sss:prt:ref", bad, "", "uint16", "")
+        with pytest.raises(ValueError, match="uint16 needs integers"):
+            to_glb(replace(asset, vertex_attributes={(0, 0): (attr,)}))
+    with pytest.raises(ValueError, match="reserved keys"):
+        to_glb(replace(asset, mesh_extras={0: {"scaleMm": 1.0}}))

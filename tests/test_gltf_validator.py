@@ -1,5 +1,6 @@
 """The Khronos glTF-Validator accepts sssbake's output and catches broken files."""
 
+from dataclasses import replace
 
 import numpy as np
 import pygltflib
@@ -8,6 +9,7 @@ import pytest
 from sssbake.exporters import gltf_validator
 from sssbake.exporters.gltf import UNSIGNED_INT, to_glb, write_glb
 from sssbake.exporters.gltf_validator import ValidatorUnavailable, find_validator, validate_glb, validate_many
+from sssbake.pipeline.baked import VertexAttribute
 from test_gltf import icosphere_asset
 
 
@@ -26,12 +28,20 @@ def test_export_is_clean_and_broken_files_are_caught(tmp_path):
     path = tmp_path / "sphere.glb"
     write_glb(icosphere_asset(double_sided=True), path)
     good_bytes, _ = to_glb(icosphere_asset(extras={"table": np.eye(3)}))
-    # one node process for all four: node's start-up dominates
-    clean, with_table, unsigned, unbounded = validate_many([
-        path, good_bytes, _broken(good_bytes, "unsigned_int_attribute"), _broken(good_bytes, "no_bounds"),
+    asset = icosphere_asset()
+    n = len(asset.scene.meshes[0].primitives[0].positions)
+    index = VertexAttribute("sss:prt:ref", np.c_[np.arange(n), np.zeros(n)], "", "uint16", "indices")
+    technique_bytes, _ = to_glb(replace(
+        asset, vertex_attributes={(0, 0): asset.vertex_attributes[(0, 0)] + (index,)},
+        mesh_extras={0: {"prt": {"codes": np.arange(30, dtype=np.uint8).reshape(10, 3),
+                                 "signed": np.array([-3, 4], dtype=np.int16)}}}))
+    # one node process for all five: node's start-up dominates
+    clean, with_table, with_technique, unsigned, unbounded = validate_many([
+        path, good_bytes, technique_bytes, _broken(good_bytes, "unsigned_int_attribute"),
+        _broken(good_bytes, "no_bounds"),
     ])
 
-    for report in (clean, with_table):
+    for report in (clean, with_table, with_technique):
         assert (report.num_errors, report.num_warnings) == (0, 0), report.to_json()
         assert report.ok
     assert clean.uri == str(path) and with_table.uri == "<bytes>"

@@ -255,3 +255,23 @@ def test_bad_references_raise(tmp_path):
         write_usdc(replace(asset, scene=replace(asset.scene, meshes=(asset.scene.meshes[0], Mesh("p", (bad,))))),
                    tmp_path / "a.usdc")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_mesh_extras_tables_and_integer_primvars(tmp_path):
+    asset = icosphere_asset()
+    n = len(asset.scene.meshes[0].primitives[0].positions)
+    codes = (np.arange(24) % 256).astype(np.uint8).reshape(8, 3)
+    index = VertexAttribute("sss:prt:ref", np.c_[np.arange(n) % 5, np.full(n, 65535)], "", "uint16", "indices")
+    asset = replace(asset, vertex_attributes={(0, 0): (index,)},
+                    mesh_extras={0: {"prt": {"codes": codes, "scale": np.array([0.5, -2.0]), "order": 2}}})
+    write_usdc(asset, tmp_path / "m.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "m.usdc"))
+    prim = stage.GetPrimAtPath("/m/root/sphere")
+    extras = json.loads(prim.GetAttribute("sss:extras").Get())
+    assert extras["prt"]["order"] == 2
+    table = prim.GetAttribute(extras["prt"]["codes"]["attribute"])
+    assert str(table.GetTypeName()) == "uchar[]"
+    np.testing.assert_array_equal(np.asarray(table.Get()).reshape(extras["prt"]["codes"]["shape"]), codes)
+    primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("sss:prt:ref")
+    assert str(primvar.GetTypeName()) == "int[]" and primvar.GetElementSize() == 2
+    np.testing.assert_array_equal(np.asarray(primvar.Get()).reshape(n, 2), index.data)

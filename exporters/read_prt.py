@@ -1,0 +1,78 @@
+"""Read the prt data of an exported .glb or .usdc back into `PrtData`, per mesh primitive.
+
+The inverse of what `pipeline.prt_layout` lays out; ``verify`` and the round-trip tests use it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+
+from ..pipeline.prt_data import PrtData
+from ..pipeline.prt_layout import prt_from_layout
+from .gltf import dequantize, read_accessor
+
+PRIMVAR_PREFIX = "primvars:sss:prt:"
+
+
+class PrtReadError(ValueError):
+    """The file holds no prt data, or holds it malformed."""
+
+
+def read_prt_glb(path: str | os.PathLike) -> dict[tuple[int, int], PrtData]:
+    """``(mesh index, primitive index) -> PrtData`` over the primitive's vertices, for every
+    primitive of a mesh whose ``extras.sssbake`` has ``prt``."""
+    gltf = pygltflib.GLTF2.load(str(path))
+    blob = gltf.binary_blob()
+    out = {}
+    for i, mesh in enumerate(gltf.meshes):
+        tables = ((mesh.extras or {}).get("sssbake") or {}).get("prt")
+        if tables is None:
+            continue
+        resolved = {k: read_accessor(gltf, v["accessor"], blob) if isinstance(v, dict) and "accessor" in v else v
+                    for k, v in tables.items()}
+        names = [resolved["attributes"]["ref"], resolved["attributes"]["weights"], *resolved["attributes"]["dq"]]
+        for j, prim in enumerate(mesh.primitives):
+            per_vertex = {}
+            for name in names:
+                index = getattr(prim.attributes, name, None)
+                if index is None:
+                    raise PrtReadError(f"{path}: mesh {i} primitive {j} lacks attribute {name}")
+                per_vertex[name] = dequantize(read_accessor(gltf, index, blob), bool(gltf.accessors[index].normalized))
+            out[(i, j)] = prt_from_layout(resolved, per_vertex)
+    if not out:
+        raise PrtReadError(f"{path}: no mesh holds prt data (bake with --techniques prt)")
+    return out
+
+
+def read_prt_usd(path: str | os.PathLike) -> dict[str, PrtData]:
+    """Mesh prim path -> PrtData, for every UsdGeom.Mesh whose ``sss:extras`` has ``prt``."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(Path(path)))
+    out = {}
+    for prim in stage.Traverse():
+        attr = prim.GetAttribute("sss:extras")
+        if not prim.IsA(UsdGeom.Mesh) or not attr:
+            continue
+        tables = json.loads(attr.Get()).get("prt")
+        if tables is None:
+            continue
+        resolved = {k: np.asarray(prim.GetAttribute(v["attribute"]).Get()).reshape(v["shape"])
+                    if isinstance(v, dict) and "attribute" in v else v for k, v in tables.items()}
+        api = UsdGeom.PrimvarsAPI(prim)
+        per_vertex = {}
+        for name in [resolved["attributes"]["ref"], resolved["attributes"]["weights"], *resolved["attributes"]["dq"]]:
+            key = name.removeprefix("_SSS_PRT_").lower()
+            primvar = api.GetPrimvar("sss:prt:" + key)
+            if not primvar:
+                raise PrtReadError(f"{path}: {prim.GetPath()} lacks {PRIMVAR_PREFIX}{key}")
+            per_vertex[name] = np.asarray(primvar.Get()).reshape(-1, primvar.GetElementSize())
+        out[str(prim.GetPath())] = prt_from_layout(resolved, per_vertex)
+    if not out:
+        raise PrtReadError(f"{path}: no mesh holds prt data (bake with --techniques prt)")
+    return out

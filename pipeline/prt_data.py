@@ -1,0 +1,103 @@
+"""The prt technique's compressed data (Hao & Varshney 2004): what the bake writes and the runtime reads.
+
+One `PrtData` per scattering mesh, over the mesh's welded surface vertices (``Surface``); the
+exporters map per-vertex arrays to render vertices through ``Surface.weld``.
+
+Decoding (numpy in `prt_decode`, GLSL in ``runtime_shaders/prt_decode.glsl``), per colour channel c
+and light direction ω (unit, object space, pointing from the surface towards the light)::
+
+    q_c(ω) = Σ_k w_k · T_c[r_k](ω)  +  Σ_i dq_c,i · y_i(ω)
+
+- ``r_0, r_1, r_2 = ref_triangles[vertex_triangle]`` are the vertex's reference points and
+  ``w_0 = weight_scale · weight_codes[:, 0] / 32767``, ``w_1`` likewise, ``w_2 = 1 - w_0 - w_1``.
+- ``T_c[r](ω)`` interpolates the reference point's table over the direction set: the hull
+  triangle (a, b, c) of ``directions`` that contains ω, barycentrics ``β ∝ direction_inverse[t] @ ω``
+  (clamped at 0, normalised to sum 1), ``T = Σ β_a · lut[c, ref_codes[r, a, c]]``.
+- ``y_i`` is the real spherical harmonic basis (Sloan 2002 normalisation, index i = l² + l + m,
+  l < sh_order) and ``dq_c,i = dq_scale[c, i] · dq_codes[:, c, i] / 127``.
+
+A mesh without reference points (SH only) has ``ref_codes.shape[0] == 0`` and zero weights; the
+uncompressed baseline makes every vertex its own reference point with weights (1, 0, 0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Octahedral map used by `direction_lookup` (and mirrored in GLSL):
+#   p = ω.xy / (|ω.x| + |ω.y| + |ω.z|);  if ω.z < 0: p = (1 - |p.yx|) · sign(p.xy)  (sign(0) = +1)
+#   texel = clamp(floor((p · 0.5 + 0.5) · L), 0, L - 1)
+
+
+@dataclass(frozen=True, eq=False)
+class PrtData:
+    """Compressed precomputed scattering integrals of one mesh.
+
+    Attributes
+    ----------
+    directions : (K, 3) float32
+        Unit light directions the integrals were computed for.
+    direction_triangles : (T, 3) int32
+        Convex hull of ``directions``, counter-clockwise seen from outside.
+    direction_inverse : (T, 3, 3) float32
+        Per hull triangle, the inverse of the matrix whose columns are its three directions.
+    direction_lookup : (L, L) int32
+        Hull triangle containing the direction at each texel centre of the octahedral map above.
+    lut : (3, 256) float32
+        Lloyd reconstruction levels per channel (radiance per unit irradiance, 1/sr).
+    ref_vertices : (R,) int64
+        Surface vertex of each reference point.
+    ref_codes : (R, K, 3) uint8
+        Lloyd codes of q at each reference point, per direction and channel.
+    ref_triangles : (F, 3) int32
+        Triangles over reference points (indices into ``ref_vertices``).
+    vertex_triangle : (n,) int32
+        Per surface vertex, its triangle in ``ref_triangles`` (0 when R == 0).
+    weight_codes : (n, 2) int16
+        Per surface vertex, w_0 and w_1 as signed normalised 16-bit values.
+    weight_scale : float
+        Range of the weights: 1 for barycentric weights, larger for least-squares weights.
+    dq_codes : (n, 3, C) int8
+        Per surface vertex and channel, SH coefficients of Δq as signed normalised bytes; C = sh_order².
+    dq_scale : (3, C) float32
+        Per channel and coefficient, the value of code 127.
+    sh_order : int
+        n of the paper (0: no Δq).
+    eta : float
+        Relative index of refraction, for F_t(η, ω_o) at runtime.
+    """
+
+    directions: np.ndarray
+    direction_triangles: np.ndarray
+    direction_inverse: np.ndarray
+    direction_lookup: np.ndarray
+    lut: np.ndarray
+    ref_vertices: np.ndarray
+    ref_codes: np.ndarray
+    ref_triangles: np.ndarray
+    vertex_triangle: np.ndarray
+    weight_codes: np.ndarray
+    weight_scale: float
+    dq_codes: np.ndarray
+    dq_scale: np.ndarray
+    sh_order: int
+    eta: float
+
+    @property
+    def vertex_count(self) -> int:
+        return len(self.vertex_triangle)
+
+    def table_bytes(self) -> dict[str, int]:
+        """Bytes of the shared tables as stored (not per vertex)."""
+        return {
+            "directions": self.directions.nbytes,
+            "direction_triangles": self.direction_triangles.nbytes,
+            "direction_inverse": self.direction_inverse.nbytes,
+            "direction_lookup": self.direction_lookup.nbytes,
+            "lut": self.lut.nbytes,
+            "ref_codes": self.ref_codes.nbytes,
+            "ref_triangles": self.ref_triangles.nbytes,
+            "dq_scale": self.dq_scale.nbytes,
+        }

@@ -1,0 +1,147 @@
+"""How `PrtData` is laid out in the exported files, and how it is read back.
+
+Per render vertex (glTF attribute / USD primvar, from `VertexAttribute` keys):
+
+- ``sss:prt:ref`` → ``_SSS_PRT_REF`` / ``primvars:sss:prt:ref``: VEC2 uint16, the vertex's
+  reference triangle ``lo + 65536 · hi``;
+- ``sss:prt:w`` → ``_SSS_PRT_W``: VEC2 snorm16, w_0 and w_1 divided by ``weightScale``;
+- ``sss:prt:dq<i>`` → ``_SSS_PRT_DQ<i>``: VEC4 snorm8; the (3, C) Δq codes of the vertex flattened
+  channel-major (index c·C + i) and cut into groups of four, the last one zero-padded.
+
+Per mesh, under ``extras.sssbake.prt`` (glTF: accessors; USD: table attributes on the Mesh prim),
+see `prt_tables`. Reading back (`prt_from_layout`) gives exactly the in-memory codes and tables.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .baked import VertexAttribute
+from .prt_data import PrtData
+
+REF_KEY, WEIGHT_KEY, DQ_KEY = "sss:prt:ref", "sss:prt:w", "sss:prt:dq"
+
+
+def dq_attribute_count(sh_order: int) -> int:
+    """How many VEC4 snorm8 attributes hold 3·sh_order² Δq codes."""
+    return -(-3 * sh_order * sh_order // 4)
+
+
+def prt_vertex_attributes(prt: PrtData, vertices: np.ndarray) -> tuple[VertexAttribute, ...]:
+    """The per-vertex attributes of one primitive.
+
+    Parameters
+    ----------
+    prt : PrtData
+        Over the mesh's welded surface vertices.
+    vertices : (p,) int64
+        The surface vertex of each render vertex of the primitive (``Surface.weld[j]``).
+
+    Returns
+    -------
+    tuple of VertexAttribute
+    """
+    tri = prt.vertex_triangle[vertices].astype(np.int64)
+    ref = np.column_stack([tri % 65536, tri // 65536]).astype(np.float64)
+    weights = prt.weight_codes[vertices].astype(np.float64) / 32767.0
+    out = [
+        VertexAttribute(REF_KEY, ref, "", "uint16", "reference triangle of the vertex: lo + 65536 * hi"),
+        VertexAttribute(WEIGHT_KEY, weights, "", "snorm16", "weights w0, w1 of the reference points "
+                        "divided by weightScale; w2 = 1 - w0 - w1"),
+    ]
+    c = prt.dq_codes.shape[2]
+    if c:
+        flat = prt.dq_codes[vertices].reshape(len(vertices), -1).astype(np.float64) / 127.0
+        groups = dq_attribute_count(prt.sh_order)
+        padded = np.zeros((len(vertices), 4 * groups))
+        padded[:, : flat.shape[1]] = flat
+        for g in range(groups):
+            out.append(VertexAttribute(f"{DQ_KEY}{g}", padded[:, 4 * g: 4 * g + 4], "", "snorm8",
+                                       f"Δq SH codes {4 * g}..{4 * g + 3} (channel-major c*C+i) / 127"))
+    return tuple(out)
+
+
+def prt_tables(prt: PrtData) -> dict:
+    """The per-mesh tables and parameters, JSON-able with numpy arrays for the binary tables."""
+    k = len(prt.directions)
+    out = {
+        "technique": "prt",
+        "directionCount": k,
+        "shOrder": int(prt.sh_order),
+        "weightScale": float(prt.weight_scale),
+        "eta": float(prt.eta),
+        "referencePointCount": int(len(prt.ref_codes)),
+        "lookupSize": int(prt.direction_lookup.shape[0]),
+        "directions": prt.directions.astype(np.float32),
+        "directionTriangles": prt.direction_triangles.astype(np.int64),
+        # Row-major 3x3 inverses, one VEC3 row per element: glTF MAT3 would mean column-major.
+        "directionInverse": prt.direction_inverse.astype(np.float32).reshape(-1, 3),
+        "directionLookup": prt.direction_lookup.astype(np.int64).reshape(-1),
+        "lut": np.ascontiguousarray(prt.lut.T.astype(np.float32)),
+        "attributes": {"ref": "_SSS_PRT_REF", "weights": "_SSS_PRT_W",
+                       "dq": [f"_SSS_PRT_DQ{g}" for g in range(dq_attribute_count(prt.sh_order))]},
+        "units": "q: radiance per unit irradiance (1/sr)",
+    }
+    if len(prt.ref_codes):
+        out["refCodes"] = prt.ref_codes.reshape(-1, 3)
+        out["refTriangles"] = prt.ref_triangles.astype(np.int64)
+    if prt.sh_order:
+        out["dqScale"] = np.ascontiguousarray(prt.dq_scale.T.astype(np.float32))
+    return out
+
+
+def prt_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> PrtData:
+    """Rebuild `PrtData` over render vertices from what a file holds.
+
+    Parameters
+    ----------
+    tables : dict
+        ``extras.sssbake.prt`` with every table already read into a numpy array.
+    per_vertex : dict
+        Attribute name (``_SSS_PRT_REF``, ...) -> (n, k) stored values as floats or integers
+        (snorm values as stored codes / MAX, as glTF and USD both give them).
+
+    Returns
+    -------
+    PrtData
+        ``ref_vertices`` is empty: surface vertex ids do not survive export.
+    """
+    k = int(tables["directionCount"])
+    order = int(tables["shOrder"])
+    lookup = int(tables["lookupSize"])
+    ref = np.rint(np.asarray(per_vertex["_SSS_PRT_REF"], dtype=np.float64)).astype(np.int64)
+    n = len(ref)
+    weights = np.rint(np.asarray(per_vertex["_SSS_PRT_W"], dtype=np.float64) * 32767.0).astype(np.int16)
+    c = order * order
+    if c:
+        flat = np.concatenate([np.asarray(per_vertex[name], dtype=np.float64).reshape(n, 4)
+                               for name in tables["attributes"]["dq"]], axis=1)
+        dq = np.rint(flat[:, : 3 * c] * 127.0).astype(np.int8).reshape(n, 3, c)
+        dq_scale = np.asarray(tables["dqScale"], dtype=np.float32).reshape(c, 3).T
+    else:
+        dq = np.zeros((n, 3, 0), dtype=np.int8)
+        dq_scale = np.zeros((3, 0), dtype=np.float32)
+    r = int(tables["referencePointCount"])
+    if r:
+        ref_codes = np.asarray(tables["refCodes"], dtype=np.uint8).reshape(r, k, 3)
+        ref_triangles = np.asarray(tables["refTriangles"]).astype(np.int32).reshape(-1, 3)
+    else:
+        ref_codes = np.zeros((0, k, 3), dtype=np.uint8)
+        ref_triangles = np.zeros((0, 3), dtype=np.int32)
+    return PrtData(
+        directions=np.asarray(tables["directions"], dtype=np.float32).reshape(k, 3),
+        direction_triangles=np.asarray(tables["directionTriangles"]).astype(np.int32).reshape(-1, 3),
+        direction_inverse=np.asarray(tables["directionInverse"], dtype=np.float32).reshape(-1, 3, 3),
+        direction_lookup=np.asarray(tables["directionLookup"]).astype(np.int32).reshape(lookup, lookup),
+        lut=np.ascontiguousarray(np.asarray(tables["lut"], dtype=np.float32).reshape(-1, 3).T),
+        ref_vertices=np.zeros(0, dtype=np.int64),
+        ref_codes=ref_codes,
+        ref_triangles=ref_triangles,
+        vertex_triangle=(ref[:, 0] + 65536 * ref[:, 1]).astype(np.int32),
+        weight_codes=weights,
+        weight_scale=float(tables["weightScale"]),
+        dq_codes=dq,
+        dq_scale=dq_scale,
+        sh_order=order,
+        eta=float(tables["eta"]),
+    )

@@ -1,0 +1,80 @@
+"""prt data survives export: glTF and USD round trips give exactly the in-memory codes and tables."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sssbake.exporters.gltf import write_glb
+from sssbake.exporters.gltf_validator import validate_glb
+from sssbake.exporters.read_prt import PrtReadError, read_prt_glb, read_prt_usd
+from sssbake.exporters.usd import write_usdc
+from sssbake.pipeline.prt_data import PrtData
+from sssbake.pipeline.prt_layout import dq_attribute_count, prt_tables, prt_vertex_attributes
+from test_gltf import icosphere_asset
+
+
+def random_prt(n: int, k: int = 14, refs: int = 9, order: int = 3, seed: int = 0) -> PrtData:
+    """Codes and tables of the right dtypes and shapes with random contents (decode is not the point)."""
+    rng = np.random.default_rng(seed)
+    c = order * order
+    return PrtData(
+        directions=rng.normal(size=(k, 3)).astype(np.float32),
+        direction_triangles=rng.integers(0, k, (2 * k - 4, 3)).astype(np.int32),
+        direction_inverse=rng.normal(size=(2 * k - 4, 3, 3)).astype(np.float32),
+        direction_lookup=rng.integers(0, 2 * k - 4, (8, 8)).astype(np.int32),
+        lut=np.sort(rng.random((3, 256)), axis=1).astype(np.float32),
+        ref_vertices=np.arange(refs, dtype=np.int64),
+        ref_codes=rng.integers(0, 256, (refs, k, 3)).astype(np.uint8),
+        ref_triangles=rng.integers(0, max(refs, 1), (max(2 * refs - 4, 1) if refs else 0, 3)).astype(np.int32),
+        # beyond 16 bits on purpose: the index is split into lo and hi
+        vertex_triangle=rng.integers(0, 70000, n).astype(np.int32),
+        weight_codes=rng.integers(-32767, 32768, (n, 2)).astype(np.int16),
+        weight_scale=1.5,
+        dq_codes=rng.integers(-127, 128, (n, 3, c)).astype(np.int8),
+        dq_scale=rng.random((3, c)).astype(np.float32),
+        sh_order=order,
+        eta=1.3,
+    )
+
+
+def prt_asset(prt: PrtData):
+    asset = icosphere_asset()
+    n = len(asset.scene.meshes[0].primitives[0].positions)
+    assert prt.vertex_count == n
+    return replace(asset, vertex_attributes={(0, 0): prt_vertex_attributes(prt, np.arange(n))},
+                   mesh_extras={0: {"prt": prt_tables(prt)}})
+
+
+def assert_same(a: PrtData, b: PrtData) -> None:
+    for field in ("directions", "direction_triangles", "direction_inverse", "direction_lookup", "lut", "ref_codes",
+                  "ref_triangles", "vertex_triangle", "weight_codes", "dq_codes", "dq_scale"):
+        x, y = getattr(a, field), getattr(b, field)
+        assert x.dtype == y.dtype and x.shape == y.shape, field
+        np.testing.assert_array_equal(x, y, err_msg=field)
+    assert (a.weight_scale, a.sh_order, a.eta) == (b.weight_scale, b.sh_order, b.eta)
+
+
+@pytest.mark.parametrize("refs, order", [(9, 3), (0, 8), (5, 0)])
+def test_glb_and_usd_round_trip_exactly(tmp_path, refs, order):
+    n = len(icosphere_asset().scene.meshes[0].primitives[0].positions)
+    prt = random_prt(n, refs=refs, order=order)
+    asset = prt_asset(prt)
+    write_glb(asset, tmp_path / "a.glb")
+    write_usdc(asset, tmp_path / "a.usdc")
+    assert_same(read_prt_glb(tmp_path / "a.glb")[(0, 0)], prt)
+    assert_same(read_prt_usd(tmp_path / "a.usdc")["/a/root/sphere"], prt)
+
+
+def test_layout_is_valid_gltf_and_counts_attributes(tmp_path):
+    n = len(icosphere_asset().scene.meshes[0].primitives[0].positions)
+    write_glb(prt_asset(random_prt(n)), tmp_path / "a.glb")
+    report = validate_glb(tmp_path / "a.glb")
+    assert (report.num_errors, report.num_warnings) == (0, 0), report.to_json()
+    assert [dq_attribute_count(o) for o in (0, 1, 2, 3, 8)] == [0, 1, 3, 7, 48]
+
+
+def test_files_without_prt_say_how_to_get_it(tmp_path):
+    write_glb(icosphere_asset(), tmp_path / "plain.glb")
+    with pytest.raises(PrtReadError, match="bake with --techniques prt"):
+        read_prt_glb(tmp_path / "plain.glb")
