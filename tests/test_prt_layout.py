@@ -1,11 +1,15 @@
 """prt data survives export: glTF and USD round trips give exactly the in-memory codes and tables."""
 
+import json
 from dataclasses import replace
+from importlib import resources
 
+import jsonschema
 import numpy as np
+import pygltflib
 import pytest
 
-from sssbake.exporters.gltf import write_glb
+from sssbake.exporters.gltf import to_glb, write_glb
 from sssbake.exporters.gltf_validator import validate_glb
 from sssbake.exporters.read_prt import PrtReadError, read_prt_glb, read_prt_usd
 from sssbake.exporters.usd import write_usdc
@@ -78,3 +82,15 @@ def test_files_without_prt_say_how_to_get_it(tmp_path):
     write_glb(icosphere_asset(), tmp_path / "plain.glb")
     with pytest.raises(PrtReadError, match="bake with --techniques prt"):
         read_prt_glb(tmp_path / "plain.glb")
+
+
+def test_prt_extras_match_the_documented_schema():
+    schema = json.loads(resources.files("sssbake.exporters").joinpath("schema/sssbake.schema.json").read_text())
+    n = len(icosphere_asset().scene.meshes[0].primitives[0].positions)
+    gltf = pygltflib.GLTF2.load_from_bytes(to_glb(prt_asset(random_prt(n)))[0])
+    mesh = gltf.meshes[0].extras["sssbake"]
+    sub = {"$schema": schema["$schema"], "$defs": schema["$defs"]}
+    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(mesh)
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(
+            {**mesh, "prt": {**mesh["prt"], "directionCount": 2}})
