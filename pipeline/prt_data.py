@@ -11,7 +11,9 @@ and light direction ω (unit, object space, pointing from the surface towards th
 - ``r_0, r_1, r_2 = ref_triangles[vertex_triangle]`` are the vertex's reference points and
   ``w_0 = weight_scale · weight_codes[:, 0] / 32767``, ``w_1`` likewise, ``w_2 = 1 - w_0 - w_1``.
 - ``T_c[r](ω)`` interpolates the reference point's table over the direction set: the hull
-  triangle (a, b, c) of ``directions`` that contains ω, barycentrics ``β ∝ direction_inverse[t] @ ω``
+  triangle (a, b, c) of ``directions`` that contains ω — found from ``direction_lookup`` at ω's
+  octahedral texel, then up to ``directions.WALK_STEPS`` steps to ``direction_neighbours`` across
+  the edge with the most negative barycentric — barycentrics ``β ∝ direction_inverse[t] @ ω``
   (clamped at 0, normalised to sum 1), ``T = Σ β_a · lut[c, ref_codes[r, a, c]]``.
 - ``y_i`` is the real spherical harmonic basis (Sloan 2002 normalisation, index i = l² + l + m,
   l < sh_order) and ``dq_c,i = dq_scale[c, i] · dq_codes[:, c, i] / 127``.
@@ -28,7 +30,7 @@ import numpy as np
 
 # Octahedral map used by `direction_lookup` (and mirrored in GLSL):
 #   p = ω.xy / (|ω.x| + |ω.y| + |ω.z|);  if ω.z < 0: p = (1 - |p.yx|) · sign(p.xy)  (sign(0) = +1)
-#   texel = clamp(floor((p · 0.5 + 0.5) · L), 0, L - 1)
+#   texel = clamp(floor((p · 0.5 + 0.5) · L), 0, L - 1); lookup[v, u] (see `directions.octahedral_texel`)
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,6 +47,8 @@ class PrtData:
         Per hull triangle, the inverse of the matrix whose columns are its three directions.
     direction_lookup : (L, L) int32
         Hull triangle containing the direction at each texel centre of the octahedral map above.
+    direction_neighbours : (T, 3) int32
+        Hull triangle across the edge opposite each corner.
     lut : (3, 256) float32
         Lloyd reconstruction levels per channel (radiance per unit irradiance, 1/sr).
     ref_vertices : (R,) int64
@@ -73,6 +77,7 @@ class PrtData:
     direction_triangles: np.ndarray
     direction_inverse: np.ndarray
     direction_lookup: np.ndarray
+    direction_neighbours: np.ndarray
     lut: np.ndarray
     ref_vertices: np.ndarray
     ref_codes: np.ndarray
@@ -96,6 +101,7 @@ class PrtData:
             "direction_triangles": self.direction_triangles.nbytes,
             "direction_inverse": self.direction_inverse.nbytes,
             "direction_lookup": self.direction_lookup.nbytes,
+            "direction_neighbours": self.direction_neighbours.nbytes,
             "lut": self.lut.nbytes,
             "ref_codes": self.ref_codes.nbytes,
             "ref_triangles": self.ref_triangles.nbytes,

@@ -77,6 +77,7 @@ def prt_tables(prt: PrtData) -> dict:
         # Row-major 3x3 inverses, one VEC3 row per element: glTF MAT3 would mean column-major.
         "directionInverse": prt.direction_inverse.astype(np.float32).reshape(-1, 3),
         "directionLookup": prt.direction_lookup.astype(np.int64).reshape(-1),
+        "directionNeighbours": prt.direction_neighbours.astype(np.int64),
         "lut": np.ascontiguousarray(prt.lut.T.astype(np.float32)),
         "attributes": {"ref": "_SSS_PRT_REF", "weights": "_SSS_PRT_W",
                        "dq": [f"_SSS_PRT_DQ{g}" for g in range(dq_attribute_count(prt.sh_order))]},
@@ -133,6 +134,7 @@ def prt_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> PrtData:
         direction_triangles=np.asarray(tables["directionTriangles"]).astype(np.int32).reshape(-1, 3),
         direction_inverse=np.asarray(tables["directionInverse"], dtype=np.float32).reshape(-1, 3, 3),
         direction_lookup=np.asarray(tables["directionLookup"]).astype(np.int32).reshape(lookup, lookup),
+        direction_neighbours=np.asarray(tables["directionNeighbours"]).astype(np.int32).reshape(-1, 3),
         lut=np.ascontiguousarray(np.asarray(tables["lut"], dtype=np.float32).reshape(-1, 3).T),
         ref_vertices=np.zeros(0, dtype=np.int64),
         ref_codes=ref_codes,

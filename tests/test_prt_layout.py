@@ -27,6 +27,7 @@ def random_prt(n: int, k: int = 14, refs: int = 9, order: int = 3, seed: int = 0
         direction_triangles=rng.integers(0, k, (2 * k - 4, 3)).astype(np.int32),
         direction_inverse=rng.normal(size=(2 * k - 4, 3, 3)).astype(np.float32),
         direction_lookup=rng.integers(0, 2 * k - 4, (8, 8)).astype(np.int32),
+        direction_neighbours=rng.integers(0, 2 * k - 4, (2 * k - 4, 3)).astype(np.int32),
         lut=np.sort(rng.random((3, 256)), axis=1).astype(np.float32),
         ref_vertices=np.arange(refs, dtype=np.int64),
         ref_codes=rng.integers(0, 256, (refs, k, 3)).astype(np.uint8),
@@ -51,7 +52,7 @@ def prt_asset(prt: PrtData):
 
 
 def assert_same(a: PrtData, b: PrtData) -> None:
-    for field in ("directions", "direction_triangles", "direction_inverse", "direction_lookup", "lut", "ref_codes",
+    for field in ("directions", "direction_triangles", "direction_inverse", "direction_lookup", "direction_neighbours", "lut", "ref_codes",
                   "ref_triangles", "vertex_triangle", "weight_codes", "dq_codes", "dq_scale"):
         x, y = getattr(a, field), getattr(b, field)
         assert x.dtype == y.dtype and x.shape == y.shape, field

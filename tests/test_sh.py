@@ -1,0 +1,52 @@
+"""Real spherical harmonics: orthonormal, the convention pinned, exact fits of band-limited signals."""
+
+import numpy as np
+import pytest
+from scipy.special import sph_harm_y
+
+from sssbake.pipeline.directions import fibonacci_sphere
+from sssbake.pipeline.sh import MAX_ORDER, sh_basis, sh_fit_matrix
+
+
+def test_basis_is_orthonormal():
+    d = fibonacci_sphere(100_000)
+    b = sh_basis(d, MAX_ORDER)
+    gram = b.T @ b * (4.0 * np.pi / len(d))
+    np.testing.assert_allclose(gram, np.eye(MAX_ORDER**2), atol=1e-5)
+
+
+def test_convention_is_real_parts_of_the_condon_shortley_harmonics():
+    w = np.random.default_rng(0).normal(size=(20, 3))
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    theta, phi = np.arccos(w[:, 2]), np.arctan2(w[:, 1], w[:, 0])
+    b = sh_basis(w, MAX_ORDER)
+    for l in range(MAX_ORDER):
+        for m in range(-l, l + 1):
+            c = sph_harm_y(l, abs(m), theta, phi)
+            expected = c.real if m == 0 else np.sqrt(2.0) * (c.real if m > 0 else c.imag)
+            np.testing.assert_allclose(b[:, l * l + l + m], expected, atol=1e-12)
+    # the first bands in closed form
+    np.testing.assert_allclose(b[:, 0], 0.5 / np.sqrt(np.pi))
+    np.testing.assert_allclose(b[:, 2], np.sqrt(3.0 / (4.0 * np.pi)) * w[:, 2])
+
+
+@pytest.mark.parametrize("order", [1, 3, 5])
+def test_band_limited_signals_are_fitted_exactly_and_error_falls_with_order(order):
+    d = fibonacci_sphere(200)
+    coeffs = np.random.default_rng(order).normal(size=order**2)
+    values = sh_basis(d, order) @ coeffs
+    np.testing.assert_allclose(sh_fit_matrix(d, order) @ values, coeffs, atol=1e-10)
+
+
+def test_fit_error_falls_with_order():
+    d = fibonacci_sphere(200)
+    values = np.clip(d @ np.array([0.2, 0.3, 0.93]), 0.0, None) ** 2  # a clamped lobe, not band-limited
+    errors = [np.sqrt(np.mean((sh_basis(d, n) @ (sh_fit_matrix(d, n) @ values) - values) ** 2)) for n in range(1, 9)]
+    assert all(b < a for a, b in zip(errors, errors[1:])), errors
+
+
+def test_orders_out_of_range_are_refused():
+    with pytest.raises(ValueError, match="order must be in"):
+        sh_basis(np.array([[0.0, 0.0, 1.0]]), MAX_ORDER + 1)
+    with pytest.raises(ValueError, match="cannot determine"):
+        sh_fit_matrix(fibonacci_sphere(8), 3)
