@@ -1,0 +1,115 @@
+"""The hierarchical scattering gather: closed form on a plane, agreement with exact pair sums,
+energy bound, invariance, extremes."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from sssbake.pipeline.clean import area_weighted_normals, vertex_areas
+from sssbake.pipeline.dipole import DipoleParams, radius_for_energy, total_diffuse_reflectance
+from sssbake.pipeline.materials import preset, preset_names
+from sssbake.pipeline.scatter_operator import ScatterOptions, scatter_operator
+
+EXACT = ScatterOptions(hierarchy=False)
+
+
+def plane(spacing: float, half: int):
+    n = 2 * half + 1
+    g = (np.arange(n) - half) * spacing
+    xx, yy = np.meshgrid(g, g, indexing="ij")
+    verts = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(n * n)])
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    return verts, faces, half * n + half
+
+
+def sphere(radius_mm: float, subdivisions: int = 4):
+    s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius_mm)
+    x, f = np.asarray(s.vertices), np.asarray(s.faces)
+    return x, f, vertex_areas(x, f), area_weighted_normals(x, f)
+
+
+def lit(normals: np.ndarray, k: int = 6, seed: int = 0) -> np.ndarray:
+    """(n, k) clamped-cosine irradiance of k random directional lights."""
+    d = np.random.default_rng(seed).normal(size=(k, 3))
+    return np.clip(normals @ (d / np.linalg.norm(d, axis=1, keepdims=True)).T, 0.0, None)
+
+
+@pytest.mark.parametrize("hierarchy", [False, True])
+def test_plane_under_uniform_light_gives_total_diffuse_reflectance(hierarchy):
+    # A short-range material keeps the plane small enough for exact pair sums.
+    p = DipoleParams.from_coefficients([1.0, 1.0, 1.0], [0.5, 0.3, 0.2], 1.4)
+    options = ScatterOptions(energy_dropped=1e-2, hierarchy=hierarchy)
+    spacing = 0.25 * p.z_r.min()
+    verts, faces, centre = plane(spacing, int(np.ceil(radius_for_energy(1e-2, p).max() / spacing)) + 2)
+    op = scatter_operator(verts, vertex_areas(verts, faces), p, options)
+    q = op.apply(np.ones((len(verts), 1)))[:, centre, 0]
+    rd = total_diffuse_reflectance(p.alpha_prime, p.eta)
+    np.testing.assert_allclose(q, rd * (1.0 - op.dropped_fraction), rtol=0.01)
+    assert np.all(op.dropped_fraction <= 1e-2 + 1e-12)
+
+
+@pytest.mark.parametrize("separation, rms, peak", [(1, 5e-3, 2e-2), (2, 2e-3, 6e-3)])
+def test_hierarchy_agrees_with_exact_pairs(separation, rms, peak):
+    x, _, area, normals = sphere(25.0)  # marble: the radius spans a large part of the sphere
+    p = DipoleParams.from_material(preset("marble"))
+    signal = lit(normals)
+    exact = scatter_operator(x, area, p, EXACT).apply(signal)
+    op = scatter_operator(x, area, p, ScatterOptions(separation=separation))
+    assert op.stats["levels"] >= 2 and len(op.far) >= 1
+    got = op.apply(signal)
+    err = np.abs(got - exact)
+    assert np.sqrt(np.mean(err**2)) <= rms * np.sqrt(np.mean(exact**2))
+    assert err.max() <= peak * exact.max()
+    assert op.nnz < scatter_operator(x, area, p, EXACT).nnz  # cheaper than the pairs it replaces
+
+
+@pytest.mark.parametrize("name", preset_names())
+def test_never_gains_energy(name):
+    x, _, area, normals = sphere(10.0, subdivisions=3)
+    p = DipoleParams.from_material(preset(name))
+    signal = lit(normals, k=3)
+    budget = total_diffuse_reflectance(p.alpha_prime, p.eta)[:, None] * (area @ signal)[None, :]
+    for options in (EXACT, ScatterOptions()):
+        q = scatter_operator(x, area, p, options).apply(signal)
+        out = np.einsum("i,cik->ck", area, q)
+        assert np.all(out <= budget * (1 + 1e-9)), (name, options.hierarchy)
+        assert np.all(q >= 0) and np.all(np.isfinite(q))
+
+
+def test_rotation_invariance():
+    x, _, area, normals = sphere(20.0, subdivisions=3)
+    p = DipoleParams.from_material(preset("ketchup"))
+    rot = trimesh.transformations.rotation_matrix(0.7, [0.3, -0.5, 0.8])[:3, :3]
+    signal = lit(normals)
+    for options in (EXACT, ScatterOptions()):
+        a = scatter_operator(x, area, p, options).apply(signal)
+        b = scatter_operator(x @ rot.T, area, p, options).apply(signal)
+        # The grid is not rotated with the mesh: the hierarchy's clusters change, within its error.
+        tol = 1e-10 if not options.hierarchy else 5e-3
+        assert np.abs(a - b).max() <= tol * a.max()
+
+
+@pytest.mark.parametrize("sigma_s, sigma_a, eta", [
+    (1e-6, 1.0, 1.3),      # α' -> 0
+    (1.0, 1e-9, 1.3),      # α' -> 1, σ_tr -> 0
+    (2.0, 0.0, 1.0),       # no absorption, index matched
+    (1e4, 1e2, 2.0),       # huge σ'_t: z_r -> 0
+])
+def test_extremes_stay_finite(sigma_s, sigma_a, eta):
+    x, _, area, normals = sphere(5.0, subdivisions=2)
+    p = DipoleParams.from_coefficients([sigma_s] * 3, [sigma_a] * 3, eta)
+    for options in (EXACT, ScatterOptions()):
+        q = scatter_operator(x, area, p, options).apply(lit(normals, k=2))
+        assert np.all(np.isfinite(q)) and np.all(q >= 0)
+
+
+def test_bad_input_is_refused():
+    p = DipoleParams.from_material(preset("marble"))
+    with pytest.raises(ValueError, match="scatter: need positions"):
+        scatter_operator(np.zeros((3, 2)), np.ones(3), p)
+    with pytest.raises(ValueError, match="finite"):
+        scatter_operator(np.full((3, 3), np.nan), np.ones(3), p)
+    with pytest.raises(ValueError, match="energy_dropped"):
+        scatter_operator(np.zeros((3, 3)), np.ones(3), p, ScatterOptions(energy_dropped=0.0))
