@@ -1,0 +1,82 @@
+"""Which surface vertices see a light: embree ray casts from each vertex towards the light."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+#: Rays start this fraction of the bounding-box diagonal off the surface along the vertex normal,
+#: so they do not hit the triangles around their own vertex.
+OFFSET = 1e-4
+#: Rays cast per embree call (bounds the memory of origins and directions).
+BATCH = 2_000_000
+
+
+def direction_visibility(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray,
+                         directions: np.ndarray) -> np.ndarray:
+    """Whether each vertex sees each directional light unoccluded.
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+    faces : (m, 3) int64
+    normals : (n, 3) float64
+        Outward unit vertex normals.
+    directions : (K, 3) float64
+        Unit directions towards the lights.
+
+    Returns
+    -------
+    (n, K) bool
+        False where the light is below the vertex's horizon (n·ω <= 0) or blocked.
+    """
+    x, intersector, offset = _setup(positions, faces, normals)
+    directions = np.asarray(directions, dtype=np.float64)
+    facing = np.asarray(normals, dtype=np.float64) @ directions.T > 0.0
+    out = np.zeros(facing.shape, dtype=bool)
+    vertex, light = np.nonzero(facing)
+    for s in range(0, len(vertex), BATCH):
+        v, j = vertex[s:s + BATCH], light[s:s + BATCH]
+        blocked = intersector.intersects_any(x[v] + offset[v], directions[j])
+        out[v[~blocked], j[~blocked]] = True
+    return out
+
+
+def point_visibility(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray,
+                     light_position: np.ndarray) -> np.ndarray:
+    """(n,) bool: whether each vertex sees a point light at `light_position` (3,) unoccluded."""
+    x, intersector, offset = _setup(positions, faces, normals)
+    centre = 0.5 * (np.asarray(positions).min(axis=0) + np.asarray(positions).max(axis=0))
+    to_light = np.asarray(light_position, dtype=np.float64) - centre - x
+    distance = np.linalg.norm(to_light, axis=1)
+    facing = (np.einsum("ij,ij->i", normals, to_light) > 0.0) & (distance > 0.0)
+    out = np.zeros(len(x), dtype=bool)
+    idx = np.flatnonzero(facing)
+    if len(idx):
+        d = to_light[idx] / distance[idx, None]
+        origins = x[idx] + offset[idx]
+        locations, ray_index, _ = intersector.intersects_location(origins, d, multiple_hits=False)
+        # Blocked only by a hit closer than the light.
+        hit_distance = np.full(len(idx), np.inf)
+        hit_distance[ray_index] = np.linalg.norm(locations - origins[ray_index], axis=1)
+        out[idx] = hit_distance >= distance[idx] - np.linalg.norm(offset[idx], axis=1)
+    return out
+
+
+def _setup(positions, faces, normals):
+    positions = np.asarray(positions, dtype=np.float64)
+    faces = np.asarray(faces)
+    normals = np.asarray(normals, dtype=np.float64)
+    if positions.ndim != 2 or positions.shape[1] != 3 or normals.shape != positions.shape:
+        raise ValueError(f"visibility: need positions and normals of shape (n, 3), got {positions.shape}, {normals.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0 or faces.min() < 0 or faces.max() >= len(positions):
+        raise ValueError("visibility: faces must be a non-empty (m, 3) array indexing the positions")
+    if not (np.all(np.isfinite(positions)) and np.all(np.isfinite(normals))):
+        raise ValueError("visibility: positions and normals must be finite")
+    # Embree works in float32: centring keeps its precision relative to the mesh size.
+    centre = 0.5 * (positions.min(axis=0) + positions.max(axis=0))
+    x = positions - centre
+    diagonal = float(np.linalg.norm(np.ptp(positions, axis=0)))
+    mesh = trimesh.Trimesh(x, faces, process=False, validate=False)
+    return x, RayMeshIntersector(mesh), (OFFSET * diagonal) * normals
