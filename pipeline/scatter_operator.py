@@ -10,13 +10,13 @@ and sources beyond the energy radius R dropped (at most `energy_dropped` of R_d 
 Not O(N²): sources near a target are summed exactly; farther ones through nested voxel-grid
 clusters (cell size h_0·2^l), FMM style. Two cells of one level are *near* when their integer
 coordinates differ by at most `separation` in every axis. A target cell t and a source cell s of
-level l interact through the cluster when they are not near but their parents are; pairs near at
+level l interact cluster to cluster when they are not near but their parents are; pairs near at
 level 0 are summed vertex by vertex. Each (target, source) vertex pair is thereby counted exactly
-once. A cluster is evaluated at each target vertex as a Taylor expansion about its area-weighted
-centroid x̄: Rd(|x_o - x̄|) Σ ΔA_i E_i + ∇Rd · Σ ΔA_i E_i (x_i - x̄) + ½ tr(H Σ) Σ ΔA_i E_i, with Σ the
-cluster's area covariance and H the Hessian of Rd(|x_o - ·|). The signal's first moment matters:
-without it, E varying across a cluster (n·ω on a curved surface) costs ~3% rms on the armadillo;
-with it the error is second order in cell size / distance.
+once. An interaction is a first-order Taylor expansion about both area-weighted centroids:
+the source's moments Σ ΔA_i E_i and Σ ΔA_i E_i (y_i - ȳ) (E varying across a cluster, n·ω on a
+curved surface, would otherwise cost ~3% rms on the armadillo), evaluated as a value and gradient
+at the target centroid and spread to its vertices, plus ½ tr(H (Σ_s + Σ_t)) with Σ the clusters'
+area covariances and H the kernel's Hessian. The error is second order in cell size / distance.
 
 Far-field entries are stored as float32: they approximate to ~1e-3 anyway, and float64 would
 double the operator's memory (150k vertices: ~1 GB of far entries in float32).
@@ -52,7 +52,7 @@ class ScatterOptions:
 
     energy_dropped: float = 1e-2
     separation: int = 2
-    vertices_per_cell: float = 2.0
+    vertices_per_cell: float = 0.5
     hierarchy: bool = True
 
 
@@ -70,7 +70,7 @@ class ScatterOperator:
         (Rd ΔA_i, the self term on the diagonal).
     near_values : (3, nnz) float64
     far : list of FarLevel
-        Per level of the hierarchy, the cluster terms.
+        Per level of the hierarchy, the cluster-to-cluster terms.
     radius_mm : (3,) float64
         Truncation radius per channel.
     dropped_fraction : (3,) float64
@@ -108,13 +108,20 @@ class ScatterOperator:
         for c in range(3):
             out[c] = _with_data(self.near, self.near_values[c]) @ signal
         for f in self.far:
+            # Source moments per cluster: Σ ΔA E and Σ ΔA E (x_i - x̄).
             moment0 = f.aggregate @ signal
             moment1 = [f.aggregate @ (signal * f.offsets[:, k:k + 1]) for k in range(3)]
             for c in range(3):
-                out[c] += _with_data(f.pattern, f.value[c]) @ moment0
+                # Local expansion at each target cluster: value and gradient at its centroid.
+                local = _with_data(f.pattern, f.value[c]) @ moment0
+                gradient = 0.0
                 for k in range(3):
-                    # ∇_y Rd(|x_o - y|) at the centroid = -Rd'(d) (x_o - x̄)/d
-                    out[c] -= _with_data(f.pattern, f.slope[c] * f.unit[k]) @ moment1[k]
+                    g = _with_data(f.pattern, f.slope[c] * f.unit[k])  # Rd'(D) R̂_k
+                    local -= g @ moment1[k]        # ∇_y Rd(|x - y|) = -Rd' R̂ at the source
+                    gradient = gradient + (g @ moment0)[f.cell] * f.offsets[:, k:k + 1]  # ∇_x = +Rd' R̂
+                out[c] += local[f.cell] + gradient
+        # First-order terms can dip a hair below zero where a cluster's signal ends; q cannot.
+        np.maximum(out, 0.0, out=out)
         return out
 
 
@@ -124,18 +131,20 @@ class FarLevel:
 
     Attributes
     ----------
-    pattern : csr_matrix (n, m)
-        Which clusters each target vertex reads (values unused).
+    pattern : csr_matrix (m, m)
+        Which source clusters each target cluster reads (values unused).
     value : (3, nnz) float32
-        Rd(d) plus the area-spread term, per channel (d = |x_o - x̄|).
+        Rd(D) plus the spread terms of both clusters, per channel (D = |x̄_t - x̄_s|).
     slope : (3, nnz) float32
-        Rd'(d) per channel.
+        Rd'(D) per channel.
     unit : (3, nnz) float32
-        (x_o - x̄) / d.
+        R̂ = (x̄_t - x̄_s) / D.
     aggregate : csr_matrix (m, n)
         Vertex areas ΔA_i summed into clusters.
     offsets : (n, 3) float64
         x_i - x̄ of each vertex's cluster.
+    cell : (n,) int64
+        Each vertex's cluster.
     """
 
     pattern: sp.csr_matrix
@@ -144,6 +153,7 @@ class FarLevel:
     unit: np.ndarray
     aggregate: sp.csr_matrix
     offsets: np.ndarray
+    cell: np.ndarray
 
 
 def scatter_operator(positions_mm: np.ndarray, areas_mm2: np.ndarray, params: DipoleParams,
@@ -315,7 +325,7 @@ def _near_matrix(x, area, rows, cols, n, params: DipoleParams, radius) -> tuple[
 
 
 def _far_level(x, area, cell_of_vertex, pairs, params: DipoleParams, radius):
-    """Cluster matrices of one level for the interacting cell pairs (target t, source s)."""
+    """Cluster-to-cluster terms of one level for the interacting cell pairs (target t, source s)."""
     m = cell_of_vertex.max() + 1
     n = len(x)
     aggregate = sp.csr_matrix((area, (cell_of_vertex, np.arange(n))), shape=(m, n))
@@ -327,24 +337,17 @@ def _far_level(x, area, cell_of_vertex, pairs, params: DipoleParams, radius):
     outer = np.einsum("ij,ik->ijk", offsets, offsets).reshape(n, 9)
     spread = (aggregate @ outer).reshape(m, 3, 3) / safe[:, None, None]
 
-    # Per target vertex of t, one entry per source cluster s.
-    order = np.argsort(cell_of_vertex, kind="stable")
-    starts = np.searchsorted(cell_of_vertex[order], np.arange(m + 1))
-    count = np.diff(starts)
-    t, s = pairs[:, 0], pairs[:, 1]
-    pair = np.repeat(np.arange(len(pairs)), count[t])
-    local = np.arange(count[t].sum()) - np.repeat(np.cumsum(count[t]) - count[t], count[t])
-    rows = order[starts[t[pair]] + local]
-    cols = s[pair]
-    matrix = sp.csr_matrix((np.arange(len(rows), dtype=np.float64) + 1, (rows, cols)), shape=(n, m))
+    matrix = sp.csr_matrix((np.arange(len(pairs), dtype=np.float64) + 1, (pairs[:, 0], pairs[:, 1])), shape=(m, m))
     where = matrix.data.astype(np.int64) - 1
-    r_idx, c_idx = rows[where], cols[where]
-    delta = x[r_idx] - centroid[c_idx]
+    t_idx, s_idx = pairs[where, 0], pairs[where, 1]
+    delta = centroid[t_idx] - centroid[s_idx]
     d = np.sqrt(np.einsum("ij,ij->i", delta, delta))
     unit = delta / np.maximum(d, 1e-300)[:, None]
-    s_c = spread[c_idx]
-    radial = np.einsum("ij,ijk,ik->i", unit, s_c, unit)
-    trace = np.trace(s_c, axis1=1, axis2=2)
+    # Both clusters' spreads: the source's averages the kernel over its vertices, the target's
+    # is the mean of the quadratic term its vertices would see.
+    both = spread[s_idx] + spread[t_idx]
+    radial = np.einsum("ij,ijk,ik->i", unit, both, unit)
+    trace = np.trace(both, axis1=1, axis2=2)
     value = np.empty((3, len(where)), dtype=np.float32)
     slope = np.empty((3, len(where)), dtype=np.float32)
     for c in range(3):
@@ -357,7 +360,7 @@ def _far_level(x, area, cell_of_vertex, pairs, params: DipoleParams, radius):
         value[c] = v
         slope[c] = f1
     matrix.data = np.ones_like(matrix.data)
-    return FarLevel(matrix, value, slope, unit.T.astype(np.float32), aggregate, offsets)
+    return FarLevel(matrix, value, slope, unit.T.astype(np.float32), aggregate, offsets, cell_of_vertex)
 
 
 def _profile(r: np.ndarray, p: DipoleParams, c: int) -> np.ndarray:

@@ -50,7 +50,7 @@ def test_plane_under_uniform_light_gives_total_diffuse_reflectance(hierarchy):
     assert np.all(op.dropped_fraction <= 1e-2 + 1e-12)
 
 
-@pytest.mark.parametrize("separation, rms, peak", [(1, 5e-3, 2e-2), (2, 2e-3, 6e-3)])
+@pytest.mark.parametrize("separation, rms, peak", [(1, 1e-2, 3e-2), (2, 3e-3, 8e-3)])
 def test_hierarchy_agrees_with_exact_pairs(separation, rms, peak):
     x, _, area, normals = sphere(25.0)  # marble: the radius spans a large part of the sphere
     p = DipoleParams.from_material(preset("marble"))
@@ -87,7 +87,7 @@ def test_rotation_invariance():
         a = scatter_operator(x, area, p, options).apply(signal)
         b = scatter_operator(x @ rot.T, area, p, options).apply(signal)
         # The grid is not rotated with the mesh: the hierarchy's clusters change, within its error.
-        tol = 1e-10 if not options.hierarchy else 5e-3
+        tol = 1e-10 if not options.hierarchy else 1.5e-2
         assert np.abs(a - b).max() <= tol * a.max()
 
 
