@@ -13,6 +13,9 @@ from scipy.spatial import cKDTree
 
 from .simplify import simplify
 
+#: Triangles searched around a vertex that lies outside all triangles of its parent's ring.
+NEAREST = 16
+
 
 @dataclass(frozen=True, eq=False)
 class ReferencePoints:
@@ -77,13 +80,20 @@ def reference_points(positions: np.ndarray, faces: np.ndarray, count: int) -> Re
     weights = np.zeros((n, 3))
     vertex_triangle[pair_vertex[chosen]] = pair_face[chosen]
     weights[pair_vertex[chosen]] = bary[chosen]
-    lost = np.flatnonzero(~has)
+    # Vertices outside every triangle around their parent (collapses can carry a vertex beyond
+    # the parent's ring) or without a parent: the best of the nearest triangles.
+    outside = np.full(n, True)
+    outside[pair_vertex[chosen]] = score[chosen] < -1e-9
+    lost = np.flatnonzero(outside)
     if len(lost):
-        # Vertices the simplifier dropped without a parent: the nearest triangle centroid.
         centroids = positions[corners].mean(axis=1)
-        _, nearest = cKDTree(centroids).query(positions[lost])
-        vertex_triangle[lost] = nearest
-        weights[lost] = _barycentric(positions[lost], positions[corners[nearest]])
+        k = min(NEAREST, len(tri))
+        _, nearest = cKDTree(centroids).query(positions[lost], k=k)
+        nearest = nearest.reshape(len(lost), k)
+        bary = _barycentric(np.repeat(positions[lost], k, axis=0), positions[corners[nearest.ravel()]])
+        best = bary.min(axis=1).reshape(len(lost), k).argmax(axis=1)
+        vertex_triangle[lost] = nearest[np.arange(len(lost)), best]
+        weights[lost] = bary.reshape(len(lost), k, 3)[np.arange(len(lost)), best]
     # Outside every candidate (beyond a fold or the boundary): clamp onto the triangle.
     weights = np.clip(weights, 0.0, None)
     total = weights.sum(axis=1, keepdims=True)
