@@ -28,13 +28,16 @@ from .fallback import make_fallback
 from .load import AssetError, load_scene
 from .materials import Material
 from .options import BakeOptions
+from .prt_compress import PrtCompressOptions
+from .prt_layout import prt_tables, prt_vertex_attributes
+from .prt_stage import bake_prt
 from .scene import Image, Mesh, Scene, SourceMaterial, Texture, TextureRef
 from .stages import StageRunner
 from .thickness import bake_thickness
 from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
-STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1}
+STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 1}
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
 
@@ -165,7 +168,11 @@ def bake_asset(
     translucent = {i for i, m in assignment.materials.items() if m is not None}
     scene, origin = _split_shared_materials(assignment.scene, translucent)
     material_of = {i: assignment.materials.get(o) for i, o in enumerate(origin)}
-    runner.skip("simplify", "no technique that needs reference points was requested")
+    if "prt" not in options.techniques:
+        runner.skip("simplify", "no technique that needs reference points was requested")
+        runner.skip("prt", "not requested (--techniques prt)")
+    mesh_extras: dict[int, dict] = {}
+    prt_reports: dict[str, dict] = {}
 
     meshes = list(scene.meshes)
     images, textures = list(scene.images), list(scene.textures)
@@ -211,6 +218,23 @@ def bake_asset(
             bake_thickness_map, atlas, [(p.positions, p.normals) for p in mesh.primitives], surface, cap,
             options.thickness_rays, options.atlas_padding,
         )
+        prt = None
+        if "prt" in options.techniques:
+            if len(mats) > 1:
+                warnings.append(f"mesh {mesh.name!r}: prt needs one scattering material per mesh, it has "
+                                f"{len(mats)}; baked with {scene.materials[mats[0]].name!r}'s")
+            compress = PrtCompressOptions(options.prt_mode, options.prt_reference_fraction, options.prt_sh_order,
+                                          options.prt_weights)
+            baked, _ = runner.run(
+                "prt", STAGE_VERSIONS["prt"], mesh_key,
+                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "k": options.prt_directions,
+                 "energy": options.prt_energy_dropped, "compress": compress.__dict__},
+                bake_prt, surface, mesh_mm, material_of[mats[0]], options.prt_directions,
+                options.prt_energy_dropped, compress,
+            )
+            prt = baked.prt
+            mesh_extras[mi] = {"prt": prt_tables(prt)}
+            prt_reports[mesh.name] = baked.report
         tmax = max(float(tmap.image.max()), float(thick.thickness.max()), 1e-30)
         images.append(Image(f"{mesh.name}_thickness", "image/png", _png_gray(tmap.image / tmax)))
         textures.append(Texture(len(images) - 1, LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE, CLAMP_TO_EDGE))
@@ -231,6 +255,8 @@ def bake_asset(
                     VertexAttribute("thickness", t_mm, "mm", "float32",
                                     "distance through the object along the inward normal"),
                 )
+                if prt is not None:
+                    attributes[(mi, pi)] += prt_vertex_attributes(prt, surface.weld[pi][vm])
         meshes[mi] = Mesh(mesh.name, tuple(prims))
         ref = TextureRef(len(textures) - 1, uv_set)
         for m in mats:
@@ -244,7 +270,7 @@ def bake_asset(
         "scaleSource": scale_source,
         "thickness": {"unit": "mm", "raysPerSample": options.thickness_rays, "missCap": "bounding-box diagonal"},
     }
-    asset = BakedAsset(baked_scene, attributes, scattering, scale_mm, extras)
+    asset = BakedAsset(baked_scene, attributes, scattering, scale_mm, extras, mesh_extras)
     written: list[Path] = []
     try:
         with runner.timed("export_gltf"):
@@ -273,6 +299,7 @@ def bake_asset(
             },
             "sizes": sizes,
             "atlas": atlases,
+            "prt": prt_reports,
             "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"}
                       for fmt, summary in (("glb", glb_summary), ("usdc", usd_summary))},
             "validation": validation,

@@ -28,6 +28,10 @@ def _bake(args) -> int:
         overrides["atlas_resolution"] = args.atlas_resolution
     if args.no_validate:
         overrides["validate"] = False
+    for name in ("techniques", "prt_directions", "prt_energy_dropped", "prt_mode", "prt_reference_fraction",
+                 "prt_sh_order", "prt_weights"):
+        if getattr(args, name) is not None:
+            overrides[name] = getattr(args, name)
     out = Path(args.out)
     cache = None if args.no_cache else (args.cache_dir or str(out / ".sssbake-cache"))
     try:
@@ -98,6 +102,16 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--config", help="TOML batch config (defaults, per-file rules, material rules)")
     b.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
     b.add_argument("--atlas-resolution", type=int, help=f"atlas texels per side (default {BAKE_DEFAULTS.atlas_resolution})")
+    b.add_argument("--techniques", help="comma-separated techniques to bake besides the fallback: prt")
+    b.add_argument("--prt-directions", type=int, help=f"prt: light directions K (default {BAKE_DEFAULTS.prt_directions})")
+    b.add_argument("--prt-energy-dropped", type=float,
+                   help=f"prt: fraction of R_d the gather radius may drop (default {BAKE_DEFAULTS.prt_energy_dropped})")
+    b.add_argument("--prt-mode", choices=["refs+sh", "sh", "lloyd"], help=f"prt compression (default {BAKE_DEFAULTS.prt_mode})")
+    b.add_argument("--prt-reference-fraction", type=float,
+                   help=f"prt: reference points per vertex (default {BAKE_DEFAULTS.prt_reference_fraction})")
+    b.add_argument("--prt-sh-order", type=int, help=f"prt: SH order of Δq (default {BAKE_DEFAULTS.prt_sh_order})")
+    b.add_argument("--prt-weights", choices=["barycentric", "least_squares"],
+                   help=f"prt: reference weights (default {BAKE_DEFAULTS.prt_weights})")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
+from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, WEIGHTS
+from .scatter_operator import SCATTER_DEFAULTS
+from .sh import MAX_ORDER
+
 OPAQUE = "opaque"
+#: Techniques `bake` can run.
+TECHNIQUES = ("prt",)
 
 
 @dataclass(frozen=True)
@@ -30,6 +36,14 @@ class BakeOptions:
         Rays per sample for the thickness bake (1: straight along -n).
     validate : bool
         Run the Khronos glTF validator and UsdValidation on every export.
+    techniques : tuple of str
+        Subsurface techniques to bake besides the standard fallback (see `TECHNIQUES`).
+    prt_directions : int
+        prt: light directions K.
+    prt_energy_dropped : float
+        prt: fraction of R_d the gather radius may drop.
+    prt_mode, prt_reference_fraction, prt_sh_order, prt_weights
+        prt compression (see `prt_compress.PrtCompressOptions`).
     """
 
     material: str | dict = "marble"
@@ -39,6 +53,13 @@ class BakeOptions:
     atlas_padding: int = 4
     thickness_rays: int = 1
     validate: bool = True
+    techniques: tuple[str, ...] = ()
+    prt_directions: int = 200
+    prt_energy_dropped: float = SCATTER_DEFAULTS.energy_dropped
+    prt_mode: str = PRT_COMPRESS_DEFAULTS.mode
+    prt_reference_fraction: float = PRT_COMPRESS_DEFAULTS.reference_fraction
+    prt_sh_order: int = PRT_COMPRESS_DEFAULTS.sh_order
+    prt_weights: str = PRT_COMPRESS_DEFAULTS.weights
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -49,6 +70,10 @@ class BakeOptions:
         unknown = sorted(set(overrides) - known)
         if unknown:
             raise ValueError(f"unknown option(s) {unknown}; known: {sorted(known)}")
+        if isinstance(overrides.get("techniques"), (list, str)):
+            value = overrides["techniques"]
+            names = value.split(",") if isinstance(value, str) else value
+            overrides = {**overrides, "techniques": tuple(t.strip() for t in names if t.strip())}
         return replace(self, **overrides)
 
 
@@ -65,3 +90,18 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"atlas_padding must be in [0, resolution/8], got {o.atlas_padding}")
     if not (1 <= o.thickness_rays <= 64):
         raise ValueError(f"thickness_rays must be in [1, 64], got {o.thickness_rays}")
+    unknown = sorted(set(o.techniques) - set(TECHNIQUES))
+    if unknown:
+        raise ValueError(f"unknown technique(s) {unknown}; available: {list(TECHNIQUES)}")
+    if not (4 <= o.prt_directions <= 4096):
+        raise ValueError(f"prt_directions must be in [4, 4096], got {o.prt_directions}")
+    if not (0.0 < o.prt_energy_dropped < 0.5):
+        raise ValueError(f"prt_energy_dropped must be in (0, 0.5), got {o.prt_energy_dropped}")
+    if o.prt_mode not in MODES or o.prt_weights not in WEIGHTS:
+        raise ValueError(f"prt_mode must be one of {list(MODES)} and prt_weights one of {list(WEIGHTS)}, "
+                         f"got {o.prt_mode!r}, {o.prt_weights!r}")
+    if not (0.0 < o.prt_reference_fraction <= 1.0):
+        raise ValueError(f"prt_reference_fraction must be in (0, 1], got {o.prt_reference_fraction}")
+    if not (0 <= o.prt_sh_order <= MAX_ORDER) or o.prt_directions < o.prt_sh_order**2:
+        raise ValueError(f"prt_sh_order must be in [0, {MAX_ORDER}] with prt_directions >= order², "
+                         f"got {o.prt_sh_order}")

@@ -122,3 +122,34 @@ def test_parallel_jobs_match_serial(baked_samples, tmp_path):
     assert code == 0
     for name in ("sphere", "candle"):
         assert (tmp_path / f"{name}.glb").read_bytes() == (out / f"{name}.glb").read_bytes()
+
+
+def test_prt_bake_writes_validated_readable_data(baked_samples, tmp_path):
+    import numpy as np
+
+    from sssbake.exporters.read_prt import read_prt_glb, read_prt_usd
+    from sssbake.pipeline.prt_compress import decode_at_directions
+
+    src, _, _ = baked_samples
+    args = ["bake", str(src / "sphere.obj"), "-o", str(tmp_path), "--config", str(src / "sssbake.toml"),
+            "--techniques", "prt", "--prt-directions", "32", "--prt-sh-order", "2", "-q"]
+    assert main(args) == 0
+    report = json.loads((tmp_path / "sphere.report.json").read_text())
+    assert report["validation"]["gltf"]["errors"] == report["validation"]["gltf"]["warnings"] == 0
+    assert report["validation"]["usd"]["errors"] == 0
+    prt_report = report["prt"]["sphere.obj"]
+    assert prt_report["directions"] == 32 and prt_report["shOrder"] == 2
+    assert 0 < prt_report["droppedFraction"][0] <= 0.01 + 1e-12
+    from_glb = read_prt_glb(tmp_path / "sphere.glb")[(0, 0)]
+    from_usd = next(iter(read_prt_usd(tmp_path / "sphere.usdc").values()))
+    q = decode_at_directions(from_glb)
+    np.testing.assert_array_equal(q, decode_at_directions(from_usd))
+    assert np.all(np.isfinite(q)) and abs(q.max() - prt_report["qMax"]) <= 0.1 * prt_report["qMax"]
+
+
+def test_unknown_technique_is_a_clear_error(tmp_path, capsys):
+    src = tmp_path / "in"
+    src.mkdir()
+    (src / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert main(["bake", str(src), "-o", str(tmp_path / "out"), "--scale-mm", "1", "--techniques", "magic", "-q"]) != 0
+    assert "unknown technique(s) ['magic']" in capsys.readouterr().err
