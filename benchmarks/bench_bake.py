@@ -1,6 +1,6 @@
 """Per-stage bake time and peak memory for one asset (default: the Stanford dragon from ../shared).
 
-    python benchmarks/bench_bake.py [ASSET] [--scale-mm X] [--resolution N]
+    python benchmarks/bench_bake.py [ASSET] [--scale-mm X] [--resolution N] [--techniques prt]
 
 Prints one line per stage: seconds, peak traced allocation of the stage (numpy and Python), and the
 process's resident high-water mark after it. Runs without the cache so every stage does its work.
@@ -25,12 +25,14 @@ def main() -> None:
     ap.add_argument("asset", nargs="?", default=str(DEFAULT_ASSET))
     ap.add_argument("--scale-mm", type=float, default=10.0, help="mm per file unit (dragon: 10 → 14 cm long)")
     ap.add_argument("--resolution", type=int, default=BAKE_DEFAULTS.atlas_resolution)
+    ap.add_argument("--techniques", default="", help="e.g. prt")
     args = ap.parse_args()
     asset = Path(args.asset)
     if not asset.exists():
         print(f"skipped: {asset} not found")
         return
-    options = BAKE_DEFAULTS.merged({"scale_mm": args.scale_mm, "atlas_resolution": args.resolution})
+    options = BAKE_DEFAULTS.merged({"scale_mm": args.scale_mm, "atlas_resolution": args.resolution,
+                                    "techniques": args.techniques})
     with tempfile.TemporaryDirectory() as tmp:
         result = bake_asset(asset, options, Path(tmp) / asset.stem, StageCache(None), trace_memory=True)
         sizes = {p.suffix: p.stat().st_size for p in result.outputs}
@@ -45,6 +47,9 @@ def main() -> None:
     for mesh, a in r["atlas"].items():
         print(f"atlas {mesh!r}: {a['width']}x{a['height']} texels, {a['charts']} charts, "
               f"xatlas child peak RSS {a['xatlas_peak_rss_mb']} MB")
+    for mesh, p in r["prt"].items():
+        print(f"prt {mesh!r}: {json.dumps(p['seconds'])}; {p['referencePoints']} reference points, "
+              f"{p['bytesPerVertex']['total']:.1f} B/vertex; q compression rms/max {p['compressionRmsOverMax']:.4f}")
     print("output bytes:", json.dumps(sizes))
     print("validation:", json.dumps(r["validation"]))
 

@@ -35,7 +35,7 @@ def surface(name: str):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--k", type=int, default=200)
-    ap.add_argument("--meshes", nargs="+", default=["dragon.obj", "dragon_subdiv1.ply"])
+    ap.add_argument("--meshes", nargs="*", default=["dragon.obj", "dragon_subdiv1.ply"])
     ap.add_argument("--converge-k", type=int, default=16)
     ap.add_argument("--converge", nargs="+", default=["dragon.obj", "dragon_subdiv1.ply", "dragon_subdiv2.ply"])
     ap.add_argument("--no-converge", action="store_true")
