@@ -265,24 +265,13 @@ def _near_cell_pairs(coords: np.ndarray, a: int) -> np.ndarray:
 
 def _children_pairs(parent_pairs: np.ndarray, parent_of_vertex: np.ndarray, child_of_vertex: np.ndarray) -> np.ndarray:
     """All (child of t, child of s) for the parent pairs (t, s)."""
-    m_child = child_of_vertex.max() + 1
-    parent_of_child = np.empty(m_child, dtype=np.int64)
+    parent_of_child = np.empty(child_of_vertex.max() + 1, dtype=np.int64)
     parent_of_child[child_of_vertex] = parent_of_vertex
-    order = np.argsort(parent_of_child, kind="stable")
-    starts = np.searchsorted(parent_of_child[order], np.arange(parent_of_vertex.max() + 2))
-    count = np.diff(starts)
-    t, s = parent_pairs[:, 0], parent_pairs[:, 1]
-    # Expand (t, s) to count[t] · count[s] child pairs without Python loops.
-    per_pair = count[t] * count[s]
-    pair = np.repeat(np.arange(len(parent_pairs)), per_pair)
-    local = np.arange(per_pair.sum()) - np.repeat(np.cumsum(per_pair) - per_pair, per_pair)
-    ct = order[starts[t[pair]] + local // count[s[pair]]]
-    cs = order[starts[s[pair]] + local % count[s[pair]]]
-    return np.column_stack([ct, cs])
+    return np.column_stack(_expand_to_vertices(parent_pairs, parent_of_child))
 
 
 def _expand_to_vertices(cell_pairs: np.ndarray, cell_of_vertex: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """All (target vertex, source vertex) for cell pairs (t, s)."""
+    """All (member of t, member of s) for group pairs (t, s), members given by their group."""
     order = np.argsort(cell_of_vertex, kind="stable")
     starts = np.searchsorted(cell_of_vertex[order], np.arange(cell_of_vertex.max() + 2))
     count = np.diff(starts)

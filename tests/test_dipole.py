@@ -12,6 +12,7 @@ from sssbake.pipeline.dipole import (
     total_diffuse_reflectance,
 )
 from sssbake.pipeline.materials import preset, preset_names
+from fixtures import plane
 
 
 def _quad_total(p: DipoleParams) -> np.ndarray:
@@ -119,19 +120,12 @@ def test_radius_for_energy_bounds_dropped_fraction():
 def _plane_response(p: DipoleParams, spacing: float, half: int) -> np.ndarray:
     """Radiant exitance at the centre vertex of a regular triangulated plane under uniform unit
     irradiance, from the discrete per-vertex sums: Σ_j Rd(|x_j - x_0|) A_j + the self disc term."""
-    n = 2 * half + 1
-    g = (np.arange(n) - half) * spacing
-    xx, yy = np.meshgrid(g, g, indexing="ij")
-    verts = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(n * n)])
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    verts, faces, centre = plane(spacing, half)
     from sssbake.pipeline.clean import vertex_areas
 
     areas = vertex_areas(verts, faces)
-    centre = half * n + half
     dist = np.linalg.norm(verts - verts[centre], axis=1)
-    others = np.arange(n * n) != centre
+    others = np.arange(len(verts)) != centre
     gathered = (diffuse_reflectance_profile(dist[others], p) * areas[others, None]).sum(axis=0)
     own = disc_integral(np.sqrt(areas[centre] / np.pi), p)
     return gathered + own

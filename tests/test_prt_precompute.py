@@ -14,7 +14,7 @@ from sssbake.pipeline.prt_precompute import PrtPrecomputeOptions, precompute_prt
 from sssbake.pipeline.reference import Light, reference_scattering
 from sssbake.pipeline.scatter_operator import ScatterOptions
 from sssbake.pipeline.visibility import direction_visibility, point_visibility
-from test_scatter_operator import plane
+from fixtures import plane
 
 SHORT = Material("short", (1.0, 1.0, 1.0), (0.5, 0.3, 0.2), 1.4)  # short range: small exact tests
 

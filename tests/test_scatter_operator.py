@@ -9,19 +9,9 @@ from sssbake.pipeline.clean import area_weighted_normals, vertex_areas
 from sssbake.pipeline.dipole import DipoleParams, radius_for_energy, total_diffuse_reflectance
 from sssbake.pipeline.materials import preset, preset_names
 from sssbake.pipeline.scatter_operator import ScatterOptions, scatter_operator
+from fixtures import plane
 
 EXACT = ScatterOptions(hierarchy=False)
-
-
-def plane(spacing: float, half: int):
-    n = 2 * half + 1
-    g = (np.arange(n) - half) * spacing
-    xx, yy = np.meshgrid(g, g, indexing="ij")
-    verts = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(n * n)])
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
-    return verts, faces, half * n + half
 
 
 def sphere(radius_mm: float, subdivisions: int = 4):

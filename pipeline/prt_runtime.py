@@ -1,0 +1,96 @@
+"""Hand `PrtData` to the GLSL decoder (``runtime_shaders/prt_decode.glsl``) with moderngl:
+its tables as textures, its per-vertex codes as vertex attributes and one integer texture."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .prt_data import PrtData
+
+#: Width of the wrapped 2-D layout of long tables (GL guarantees 4096-texel-wide textures... and
+#: far more on desktop; 4096 keeps ES 3.00's minimum of 2048 rows enough for 8M entries).
+TABLE_WIDTH = 4096
+
+
+def per_vertex_arrays(prt: PrtData) -> tuple[np.ndarray, np.ndarray]:
+    """``in_prt_ref`` (n, 2) uint16 and ``in_prt_w`` (n, 2) int16: the attributes as stored."""
+    tri = prt.vertex_triangle.astype(np.int64)
+    ref = np.column_stack([tri % 65536, tri // 65536]).astype(np.uint16)
+    return ref, prt.weight_codes.astype(np.int16)
+
+
+def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH, first_unit: int = 0) -> list:
+    """Create the textures and set the uniforms of `program` for `prt`; returns the textures
+    (keep them alive while drawing)."""
+    import moderngl
+
+    k = len(prt.directions)
+    c = prt.sh_order**2
+    limit = ctx.info["GL_MAX_TEXTURE_SIZE"]
+    tables = {
+        "u_prt_ref_codes": (_pad4(prt.ref_codes.reshape(-1, 3), np.uint8), "u1"),
+        "u_prt_ref_tris": (_pad4(prt.ref_triangles, np.int32), "i4"),
+        "u_prt_lut": (_pad4(prt.lut.T, np.float32), "f4"),
+        "u_prt_dir_tris": (_pad4(prt.direction_triangles, np.int32), "i4"),
+        "u_prt_dir_neigh": (_pad4(prt.direction_neighbours, np.int32), "i4"),
+        "u_prt_dir_inv": (_pad4(prt.direction_inverse.reshape(-1, 3), np.float32), "f4"),
+        "u_prt_dq": (prt.dq_codes.reshape(-1, 1).astype(np.int32), "i4"),
+    }
+    textures = []
+    unit = first_unit
+    for name, (rows, dtype) in tables.items():
+        tex = _table_texture(ctx, rows, dtype, width if name != "u_prt_lut" else 256, limit)
+        textures.append(tex)
+        if name in program:
+            tex.use(unit)
+            program[name].value = unit
+        unit += 1
+    lookup = ctx.texture(prt.direction_lookup.shape[::-1], 1, np.ascontiguousarray(prt.direction_lookup, np.int32).tobytes(),
+                         dtype="i4")
+    lookup.filter = (moderngl.NEAREST, moderngl.NEAREST)
+    lookup.use(unit)
+    textures.append(lookup)
+    uniforms = {
+        "u_prt_dir_lookup": unit,
+        "u_prt_k": k,
+        "u_prt_refs": len(prt.ref_codes),
+        "u_prt_order": prt.sh_order,
+        "u_prt_weight_scale": float(prt.weight_scale),
+        "u_prt_lookup_size": int(prt.direction_lookup.shape[0]),
+    }
+    for name, value in uniforms.items():
+        if name in program:
+            program[name].value = value
+    if c and "u_prt_dq_scale" in program:
+        scale = np.zeros(program["u_prt_dq_scale"].array_length, dtype=np.float32)
+        scale[: 3 * c] = prt.dq_scale.reshape(-1)
+        program["u_prt_dq_scale"].write(scale.tobytes())
+    return textures
+
+
+def _pad4(rows: np.ndarray, dtype) -> np.ndarray:
+    """Rows widened to 4 components; an empty table becomes one zero row (GL has no empty textures)."""
+    rows = np.asarray(rows)
+    out = np.zeros((max(len(rows), 1), 4), dtype=dtype)
+    if len(rows):
+        flat = rows.reshape(len(rows), -1)
+        out[: len(rows), : flat.shape[1]] = flat
+    return out
+
+
+def _table_texture(ctx, rows: np.ndarray, dtype: str, width: int, limit: int):
+    """Rows (m, components) laid out row-major in a (width, ceil(m / width)) texture."""
+    import moderngl
+
+    if len(rows) == 0:
+        rows = np.zeros((1, rows.shape[1]), dtype=rows.dtype)
+    m, components = rows.shape
+    w = min(width, m)
+    h = -(-m // w)
+    if w > limit or h > limit:
+        raise ValueError(f"prt runtime: a {m}-entry table needs {w} x {h} texels, over GL_MAX_TEXTURE_SIZE {limit}")
+    data = np.zeros((w * h, components), dtype=rows.dtype)
+    data[:m] = rows
+    tex = ctx.texture((w, h), components, data.tobytes(), dtype=dtype)
+    tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+    return tex
