@@ -152,7 +152,8 @@ def _clean_primitive(prim: Primitive, tol: float, min_area: float) -> tuple[Prim
     return cleaned, dropped
 
 
-def _surface(prims: list[Primitive], tol: float) -> Surface:
+def weld_surface(prims: list[Primitive], tol: float) -> Surface:
+    """The welded surface of `prims` (positions within `tol` joined), with normals and areas."""
     offsets = np.cumsum([0] + [len(p.positions) for p in prims])
     allpos = np.concatenate([p.positions for p in prims])
     allfaces = np.concatenate([p.faces + o for p, o in zip(prims, offsets)])
@@ -213,10 +214,10 @@ def clean_scene(scene: Scene) -> CleanScene:
         if not prims:
             warnings.append(f"mesh {mesh.name!r}: no triangle with area; mesh left out")
             continue
-        surf = _surface(prims, tol)
+        surf = weld_surface(prims, tol)
         if _encloses_negative_volume(surf):
             prims = [_flip_winding(p, surf.normals[w]) for p, w in zip(prims, surf.weld)]
-            surf = _surface(prims, tol)
+            surf = weld_surface(prims, tol)
             warnings.append(f"mesh {mesh.name!r}: triangles were wound inward (negative enclosed volume); flipped")
         prims = [
             p if p.normals is not None else replace(p, normals=surf.normals[w]) for p, w in zip(prims, surf.weld)

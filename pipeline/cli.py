@@ -1,4 +1,4 @@
-"""The `sssbake` command line: bake, inspect, presets."""
+"""The `sssbake` command line: bake, inspect, verify, presets."""
 
 from __future__ import annotations
 
@@ -6,6 +6,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from .config import EMPTY_CONFIG, ConfigError, load_config
 from .options import BAKE_DEFAULTS
@@ -53,6 +55,30 @@ def _bake(args) -> int:
         file=sys.stderr if args.quiet else sys.stdout,
     )
     return 1 if summary["failed"] else 0
+
+
+def _verify(args) -> int:
+    from ..exporters.read_prt import PrtReadError
+    from .verify import DEFAULT_LIGHT, verify_file
+
+    if Path(args.file).suffix.lower() != ".glb":
+        print(f"error: {args.file}: verify reads the .glb files sssbake bake writes", file=sys.stderr)
+        return 2
+    try:
+        light = DEFAULT_LIGHT if args.light_dir is None else tuple(float(v) for v in args.light_dir.split(","))
+        result = verify_file(args.file, args.technique, light, args.size, args.out, args.frames)
+    except (OSError, ValueError, PrtReadError) as e:
+        print(f"error: {args.file}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{args.file} ({result['technique']}, light {np.round(result['light_dir'], 3).tolist()}): "
+              f"RMSE image {result['rmse_image']:.4g}, object {result['rmse_object']:.4g} "
+              f"(plain Lambert, best-fit scaled: {result['rmse_object_lambert']:.4g}); "
+              f"frame {result['frame_ms_sss']:.2f} ms vs plain {result['frame_ms_plain']:.2f} ms; "
+              f"images in {result['pngs']['comparison']} (reference | {result['technique']} | Lambert)")
+    return 0
 
 
 def _inspect(args) -> int:
@@ -122,6 +148,16 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("inspect", help="show the sssbake data a .glb or .usdc holds, with bytes per vertex")
     i.add_argument("file")
     i.set_defaults(func=_inspect)
+
+    v = sub.add_parser("verify", help="render an export with the shipped GLSL and the offline reference; image RMSE")
+    v.add_argument("file", help="a .glb written by sssbake bake")
+    v.add_argument("--technique", default="prt", choices=["prt"])
+    v.add_argument("--light-dir", help="x,y,z world direction towards a directional light (default 0.4,0.8,0.45)")
+    v.add_argument("--size", type=int, default=512, help="image width and height (default 512)")
+    v.add_argument("--out", help="folder for the PNGs (default: next to the file)")
+    v.add_argument("--frames", type=int, default=20, help="frames timed per shader (default 20)")
+    v.add_argument("--json", action="store_true", help="print one JSON object")
+    v.set_defaults(func=_verify)
 
     p = sub.add_parser("presets", help="list the measured material presets (Jensen et al. 2001)")
     p.set_defaults(func=_presets)

@@ -1,0 +1,146 @@
+"""``sssbake verify``: render an export with the shipped GLSL and the offline reference under one
+camera and light, and measure the difference (shared by every technique; prt for now).
+
+Per mesh instance the reference is `reference.reference_scattering` over the primitive's welded
+surface (as the bake computed it), in the mesh's frame with its ``scaleMm``, mapped back to the
+file's render vertices.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+
+from ..exporters.read_prt import read_prt_glb
+from .clean import WELD_TOLERANCE, area_weighted_normals, weld_surface
+from .load import load_scene
+from .materials import Material
+from .reference import Light, reference_scattering
+from .visibility import direction_visibility
+
+TECHNIQUES = ("prt",)
+DEFAULT_LIGHT = (0.4, 0.8, 0.45)
+
+
+def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT, size: int = 512,
+                out_dir: str | os.PathLike | None = None, frames: int = 20) -> dict:
+    """Render `path` (.glb) with `technique`'s runtime and with the offline reference.
+
+    Parameters
+    ----------
+    light_dir : (3,) float
+        World direction towards a directional light of unit irradiance.
+    size : int
+        Image width and height in pixels.
+    out_dir : path, optional
+        Where the PNGs go (default: next to the file).
+
+    Returns
+    -------
+    dict
+        ``technique``, ``light_dir``, ``rmse_image``, ``rmse_object``, ``rmse_object_lambert``,
+        ``lambert_scale``, ``bytes_per_vertex``, ``bake_seconds``, ``frame_ms_sss``,
+        ``frame_ms_plain``, ``reference_seconds``, ``exposure``, ``pngs``.
+    """
+    from .image_metrics import (best_fit_scale, rmse, shared_exposure, write_comparison_png,
+                                write_difference_png)
+    from .render import Renderer, RenderLight, fit_camera
+
+    if technique not in TECHNIQUES:
+        raise ValueError(f"verify: technique must be one of {list(TECHNIQUES)}, got {technique!r}")
+    path = Path(path)
+    light_world = np.asarray(light_dir, dtype=np.float64)
+    if light_world.shape != (3,) or not np.all(np.isfinite(light_world)) or not np.linalg.norm(light_world) > 0:
+        raise ValueError(f"verify: light direction must be three finite numbers, not all zero, got {light_dir}")
+    light_world = light_world / np.linalg.norm(light_world)
+    prt_data = read_prt_glb(path)
+    gltf = pygltflib.GLTF2.load(str(path))
+    scene = load_scene(str(path))
+
+    sss_items, ref_items, lambert_items = [], [], []
+    t_ref = time.perf_counter()
+    for mi, worlds in sorted(scene.mesh_instances().items()):
+        mesh_extras = (gltf.meshes[mi].extras or {}).get("sssbake", {})
+        for pi, prim in enumerate(scene.meshes[mi].primitives):
+            if (mi, pi) not in prt_data:
+                continue
+            material = _material(gltf, prim.material, path)
+            mm = float(mesh_extras["scaleMm"])
+            normals = prim.normals if prim.normals is not None else area_weighted_normals(prim.positions, prim.faces)
+            # Seam vertices share positions: weld them, or a zero distance would read Rd(0).
+            diagonal = float(np.linalg.norm(np.ptp(prim.positions, axis=0)))
+            surface = weld_surface([prim], WELD_TOLERANCE * diagonal)
+            weld = surface.weld[0]
+            for world in worlds:
+                linear = world[:3, :3]
+                omega = np.linalg.solve(linear, light_world)
+                omega /= np.linalg.norm(omega)
+                ref = reference_scattering(surface, mm, material, Light("directional", tuple(omega)))[:, weld]
+                visible = direction_visibility(surface.positions, surface.faces, surface.normals, omega[None])[weld, 0]
+                lambert = np.clip(normals @ omega, 0.0, None) * visible
+                base = dict(positions=prim.positions, normals=normals, faces=prim.faces, model=world, eta=material.eta)
+                sss_items.append({**base, "prt": prt_data[(mi, pi)]})
+                ref_items.append({**base, "q": ref.T})
+                lambert_items.append({**base, "q": np.repeat(lambert[:, None], 3, axis=1)})
+    reference_seconds = time.perf_counter() - t_ref
+    if not sss_items:
+        raise ValueError(f"verify: {path} has no drawable primitive with prt data")
+
+    renderer = Renderer((size, size))
+    world_points = np.concatenate([(it["model"][:3, :3] @ it["positions"].T).T + it["model"][:3, 3] for it in sss_items])
+    camera = fit_camera(world_points)
+    light = RenderLight(False, tuple(light_world), 1.0)
+    image, mask = renderer.render(sss_items, camera, light)
+    reference, ref_mask = renderer.render(ref_items, camera, light)
+    lambert, _ = renderer.render(lambert_items, camera, light)
+    scale = best_fit_scale(lambert, reference, ref_mask)
+    lambert = lambert * scale
+    exposure = shared_exposure(reference, ref_mask)
+
+    out_dir = Path(out_dir) if out_dir is not None else path.parent
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = f"{path.stem}.verify.{technique}"
+    pngs = {"comparison": str(out_dir / f"{stem}.png"), "difference": str(out_dir / f"{stem}.diff.png")}
+    write_comparison_png(pngs["comparison"], [reference, image, lambert], exposure)
+    write_difference_png(pngs["difference"], image, reference, exposure)
+
+    report = _bake_report(path)
+    prt_reports = list(report.get("prt", {}).values())
+    return {
+        "technique": technique,
+        "light_dir": light_world.tolist(),
+        "rmse_image": rmse(image, reference, exposure),
+        "rmse_object": rmse(image, reference, exposure, ref_mask | mask),
+        "rmse_object_lambert": rmse(lambert, reference, exposure, ref_mask),
+        "lambert_scale": scale.tolist(),
+        "bytes_per_vertex": prt_reports[0]["bytesPerVertex"]["total"] if prt_reports else None,
+        "bake_seconds": report.get("seconds"),
+        "frame_ms_sss": renderer.frame_ms(sss_items, camera, light, frames),
+        "frame_ms_plain": renderer.frame_ms(lambert_items, camera, light, frames),
+        "reference_seconds": reference_seconds,
+        "exposure": exposure,
+        "image_size": [size, size],
+        "pngs": pngs,
+    }
+
+
+def _material(gltf: pygltflib.GLTF2, index: int | None, path: Path) -> Material:
+    data = None
+    if index is not None:
+        data = ((gltf.materials[index].extras or {}).get("sssbake") or {}).get("material")
+    if not data:
+        raise ValueError(f"verify: {path}: a prt primitive's material has no extras.sssbake.material")
+    return Material(data["name"], tuple(data["sigma_s_prime"]), tuple(data["sigma_a"]), float(data["eta"]))
+
+
+def _bake_report(path: Path) -> dict:
+    report = path.with_suffix(".report.json")
+    try:
+        return json.loads(report.read_text())
+    except (OSError, ValueError):
+        return {}

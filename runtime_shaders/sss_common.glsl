@@ -1,0 +1,29 @@
+// Shared lighting terms of the sssbake runtimes.
+const float SSS_PI = 3.14159265358979;
+
+// Exact unpolarised Fresnel transmittance into a dielectric of relative index eta
+// (pipeline/fresnel.py fresnel_transmittance).
+float fresnel_transmittance(float eta, float cos_i) {
+    float ci = clamp(cos_i, 0.0, 1.0);
+    if (ci <= 0.0) return 0.0;
+    float ct = sqrt(clamp(1.0 - (1.0 - ci * ci) / (eta * eta), 0.0, 1.0));
+    float rs = (ci - eta * ct) / (ci + eta * ct);
+    float rp = (eta * ci - ct) / (eta * ci + ct);
+    return clamp(1.0 - 0.5 * (rs * rs + rp * rp), 0.0, 1.0);
+}
+
+// Schlick's approximation of the same.
+float schlick_transmittance(float eta, float cos_i) {
+    float f0 = (eta - 1.0) / (eta + 1.0);
+    f0 *= f0;
+    return 1.0 - (f0 + (1.0 - f0) * pow(1.0 - clamp(cos_i, 0.0, 1.0), 5.0));
+}
+
+// Specular reflection off the dielectric surface: Blinn-Phong lobe (normalised) times the Fresnel
+// reflectance 1 - F_t at the half vector; per unit irradiance.
+float surface_specular(vec3 n, vec3 v, vec3 l, float eta, float shininess) {
+    vec3 h = normalize(v + l);
+    float ndl = max(dot(n, l), 0.0);
+    float lobe = (shininess + 8.0) / (8.0 * SSS_PI) * pow(max(dot(n, h), 0.0), shininess);
+    return (1.0 - fresnel_transmittance(eta, dot(h, l))) * lobe * ndl;
+}
