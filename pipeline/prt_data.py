@@ -93,17 +93,3 @@ class PrtData:
     @property
     def vertex_count(self) -> int:
         return len(self.vertex_triangle)
-
-    def table_bytes(self) -> dict[str, int]:
-        """Bytes of the shared tables as stored (not per vertex)."""
-        return {
-            "directions": self.directions.nbytes,
-            "direction_triangles": self.direction_triangles.nbytes,
-            "direction_inverse": self.direction_inverse.nbytes,
-            "direction_lookup": self.direction_lookup.nbytes,
-            "direction_neighbours": self.direction_neighbours.nbytes,
-            "lut": self.lut.nbytes,
-            "ref_codes": self.ref_codes.nbytes,
-            "ref_triangles": self.ref_triangles.nbytes,
-            "dq_scale": self.dq_scale.nbytes,
-        }

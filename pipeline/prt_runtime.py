@@ -19,7 +19,7 @@ def per_vertex_arrays(prt: PrtData) -> tuple[np.ndarray, np.ndarray]:
     return ref, prt.weight_codes.astype(np.int16)
 
 
-def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH, first_unit: int = 0) -> list:
+def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
     """Create the textures and set the uniforms of `program` for `prt`; returns the textures
     (keep them alive while drawing)."""
     import moderngl
@@ -37,7 +37,7 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH, first_unit: int
         "u_prt_dq": (prt.dq_codes.reshape(-1, 1).astype(np.int32), "i4"),
     }
     textures = []
-    unit = first_unit
+    unit = 0
     for name, (rows, dtype) in tables.items():
         tex = _table_texture(ctx, rows, dtype, width if name != "u_prt_lut" else 256, limit)
         textures.append(tex)

@@ -119,9 +119,9 @@ class Renderer:
         return self.ctx.vertex_array(program, [b for b in buffers if b[2] in program], index_buffer=index,
                                      index_element_size=4)
 
-    def draw_list(self, items, camera: Camera, light: RenderLight, specular: float = 0.0):
-        """Prepared draws for `items`: dicts with ``positions``, ``normals``, ``faces``, ``model``
-        (4, 4), ``eta`` and either ``q`` (n, 3) or ``prt`` (PrtData over the vertices)."""
+    def _draws(self, items):
+        """Programs and vertex arrays for `items`: dicts with ``positions``, ``normals``, ``faces``,
+        ``model`` (4, 4), ``eta`` and either ``q`` (n, 3) or ``prt`` (PrtData over the vertices)."""
         draws = []
         for item in items:
             if "prt" in item:
@@ -136,31 +136,32 @@ class Renderer:
             draws.append((program, vao, item))
         return draws
 
-    def _draw(self, draws, camera, light, specular):
+    def render(self, items, camera: Camera, light: RenderLight, specular: float = 0.0):
+        """Render `items` (see `_draws`). Returns image (H, W, 3) float32 and coverage (H, W) bool."""
         import moderngl
 
+        draws = self._draws(items)
         self.fbo.use()
         self.fbo.clear(0.0, 0.0, 0.0, 0.0)
         self.ctx.enable(moderngl.DEPTH_TEST)
         for program, vao, item in draws:
-            keep = upload(self.ctx, program, item["prt"]) if "prt" in item else []
+            textures = upload(self.ctx, program, item["prt"]) if "prt" in item else []
             self._setup(program, item["model"], camera, light, item["eta"], specular)
             vao.render(moderngl.TRIANGLES)
-            for t in keep:
-                t.release()
-
-    def render(self, items, camera: Camera, light: RenderLight, specular: float = 0.0):
-        """Render `items` (see `draw_list`). Returns image (H, W, 3) float32 and coverage (H, W) bool."""
-        self._draw(self.draw_list(items, camera, light, specular), camera, light, specular)
+            _release(textures)
+        _release([vao for _, vao, _ in draws])
         raw = np.frombuffer(self.fbo.read(components=4, dtype="f4"), dtype=np.float32)
         rgba = raw.reshape(self.size[1], self.size[0], 4)[::-1]
         return np.ascontiguousarray(rgba[..., :3]), rgba[..., 3] > 0.5
 
     def frame_ms(self, items, camera: Camera, light: RenderLight, frames: int = 20) -> float:
-        """Median milliseconds per frame (textures and buffers already uploaded, ctx.finish each frame)."""
-        draws = self.draw_list(items, camera, light)
+        """Median milliseconds per frame (textures and buffers already uploaded, ctx.finish each frame).
+
+        Each draw binds its own textures; scalar uniforms of items sharing a program are those of
+        the last item set up, which changes no cost (the images come from `render`)."""
         import moderngl
 
+        draws = self._draws(items)
         kept = [upload(self.ctx, p, item["prt"]) if "prt" in item else [] for p, _, item in draws]
         self.fbo.use()
         self.ctx.enable(moderngl.DEPTH_TEST)
@@ -170,11 +171,18 @@ class Renderer:
         for _ in range(frames + 2):
             t = time.perf_counter()
             self.fbo.clear(0.0, 0.0, 0.0, 0.0)
-            for _, vao, _ in draws:
+            for (program, vao, _), textures in zip(draws, kept):
+                for unit, texture in enumerate(textures):  # `upload` numbers the units from 0
+                    texture.use(unit)
                 vao.render(moderngl.TRIANGLES)
             self.ctx.finish()
             times.append(time.perf_counter() - t)
         for textures in kept:
-            for t in textures:
-                t.release()
+            _release(textures)
+        _release([vao for _, vao, _ in draws])
         return 1000.0 * float(np.median(times[2:]))
+
+
+def _release(objects) -> None:
+    for o in objects:
+        o.release()
