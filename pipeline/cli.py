@@ -81,6 +81,39 @@ def _verify(args) -> int:
     return 0
 
 
+def _tradeoff(args) -> int:
+    from .load import AssetError
+    from .materials import MaterialError, material_from_spec
+    from .tradeoff import prt_tradeoff
+
+    path = Path(args.input)
+    try:
+        material = material_from_spec(args.material, args.material)
+        if args.scale_mm is None:
+            from .load import load_scene
+
+            declared = load_scene(str(path)).meters_per_unit
+            if declared is None:
+                raise ValueError("no scale: this format carries no unit; pass --scale-mm")
+            scale = 1000.0 * declared
+        else:
+            scale = args.scale_mm
+        result = prt_tradeoff(path, scale, material, args.out or path.parent, k=args.k, lights=args.lights,
+                              size=args.size)
+    except (OSError, ValueError, AssetError, MaterialError) as e:
+        print(f"error: {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for r in result["rows"]:
+            print(f"{r['sweep']:>16} {r['mode']:>8} K={r['k']:<4} n={r['sh_order']} refs={r['reference_fraction']:<7g} "
+                  f"{r['weights']:<13} {r['bytes_per_vertex']:9.1f} B/vertex {r['seconds']:7.2f} s  RMSE {r['rmse_image']:.5f}")
+        print(f"frame {result['frame_ms_sss']:.2f} ms with prt, {result['frame_ms_plain']:.2f} ms without "
+              f"(ratio {result['frame_ratio']:.2f}); {result['outputs']['plot']}")
+    return 0
+
+
 def _inspect(args) -> int:
     path = Path(args.file)
     suffix = path.suffix.lower()
@@ -158,6 +191,18 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--frames", type=int, default=20, help="frames timed per shader (default 20)")
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=_verify)
+
+    t = sub.add_parser("tradeoff", help="sweep a technique's knobs: image RMSE vs bytes per vertex and seconds")
+    t.add_argument("input", help="a mesh file (the largest mesh is used)")
+    t.add_argument("--technique", default="prt", choices=["prt"])
+    t.add_argument("--material", default=BAKE_DEFAULTS.material, help="preset name (default marble)")
+    t.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
+    t.add_argument("--k", type=int, default=BAKE_DEFAULTS.prt_directions, help="directions for the compression sweeps")
+    t.add_argument("--lights", type=int, default=3, help="random test lights; the worst RMSE counts (default 3)")
+    t.add_argument("--size", type=int, default=256, help="image size (default 256)")
+    t.add_argument("--out", help="folder for the JSON, CSV and plot (default: next to the input)")
+    t.add_argument("--json", action="store_true", help="print one JSON object")
+    t.set_defaults(func=_tradeoff)
 
     p = sub.add_parser("presets", help="list the measured material presets (Jensen et al. 2001)")
     p.set_defaults(func=_presets)

@@ -1,0 +1,189 @@
+"""``sssbake tradeoff``: what each prt knob buys, measured the way Hao & Varshney 2004 do
+(image RMSE on [0, 1] values against images of the uncompressed q, Figs 5 and 9), with bytes per
+vertex and seconds, written as JSON, CSV and Pareto plots.
+
+One mesh (the largest of the file), one material. Test lights are random directions (seeded), not
+in the direction set; "exact" images use q computed for the test direction itself with the same
+gather, so the K sweep measures direction interpolation alone and the compression sweeps measure
+compression alone (against the interpolated uncompressed q at K = `k`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..exporters.atomic import atomic_path
+from .clean import clean_scene
+from .dipole import DipoleParams
+from .directions import direction_set, interpolation_weights
+from .load import load_scene
+from .materials import Material
+from .prt_compress import PrtCompressOptions, bytes_per_vertex, compress_prt, evaluate
+from .prt_precompute import irradiance_signal
+from .scatter_operator import SCATTER_DEFAULTS, scatter_operator
+from .visibility import direction_visibility
+
+KS = (25, 50, 100, 200, 400)
+ORDERS = (1, 2, 3, 4, 5, 6, 7, 8)
+REFERENCE_FRACTIONS = (0.0025, 0.005, 0.01, 0.02, 0.04)
+
+
+def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material, out_dir: str | os.PathLike,
+                 k: int = 200, ks=KS, orders=ORDERS, reference_fractions=REFERENCE_FRACTIONS, lights: int = 3,
+                 size: int = 256, seed: int = 0) -> dict:
+    """Run the sweeps and write ``<stem>.tradeoff.prt.json``, ``.csv`` and ``.png`` into `out_dir`.
+
+    Returns
+    -------
+    dict
+        ``rows`` (one per configuration: ``sweep``, ``mode``, ``k``, ``sh_order``,
+        ``reference_fraction``, ``weights``, ``bytes_per_vertex``, ``seconds``, ``rmse_image``),
+        ``frame_ms_sss``, ``frame_ms_plain``, ``frame_ratio``, ``vertices``, ``outputs``.
+    """
+    from .render import Renderer, RenderLight, fit_camera
+
+    path = Path(path)
+    clean = clean_scene(load_scene(str(path)))
+    surface = max(clean.surfaces, key=lambda s: len(s.positions))
+    x_mm = surface.positions * mm_per_unit
+    t = time.perf_counter()
+    operator = scatter_operator(x_mm, surface.vertex_areas * mm_per_unit**2, DipoleParams.from_material(material),
+                                SCATTER_DEFAULTS)
+    operator_seconds = time.perf_counter() - t
+
+    def gather(directions: np.ndarray) -> np.ndarray:
+        visible = direction_visibility(surface.positions, surface.faces, surface.normals, directions)
+        return operator.apply(irradiance_signal(surface.normals, directions, visible, material.eta))
+
+    rng = np.random.default_rng(seed)
+    test = rng.normal(size=(lights, 3))
+    test /= np.linalg.norm(test, axis=1, keepdims=True)
+    exact = gather(test)  # (3, n, lights)
+
+    renderer = Renderer((size, size))
+    camera = fit_camera(surface.positions)
+    base = dict(positions=surface.positions, normals=surface.normals, faces=surface.faces, model=np.eye(4),
+                eta=material.eta)
+
+    def images(q_per_light: list[np.ndarray]) -> list[np.ndarray]:
+        return [renderer.render([{**base, "q": q.T}], camera, RenderLight(False, tuple(test[j]), 1.0))[0]
+                for j, q in enumerate(q_per_light)]
+
+    reference_images = images([exact[:, :, j] for j in range(lights)])
+    exposure = 1.0 / max(max(float(np.percentile(im.max(axis=-1), 99.5)) for im in reference_images), 1e-300)
+
+    def rmse_against(reference: list[np.ndarray], q_per_light: list[np.ndarray]) -> float:
+        # The paper's metric: image RMSE on [0, 1] values, the worst over the test views.
+        return max(float(np.sqrt(np.mean((np.clip(a * exposure, 0, 1) - np.clip(b * exposure, 0, 1)) ** 2)))
+                   for a, b in zip(images(q_per_light), reference))
+
+    rows = []
+    uncompressed = None
+    for kk in sorted(set(ks) | {k}):
+        t = time.perf_counter()
+        ds = direction_set(kk)
+        q = gather(ds.directions)
+        seconds = time.perf_counter() - t + operator_seconds
+        index, weights = interpolation_weights(ds, test)
+        interpolated = [np.einsum("cna,a->cn", q[:, :, index[j]], weights[j]) for j in range(lights)]
+        if kk in ks:
+            rows.append({"sweep": "directions", "mode": "float", "k": kk, "sh_order": 0, "reference_fraction": 1.0,
+                         "weights": "", "bytes_per_vertex": 12.0 * kk, "seconds": seconds,
+                         "rmse_image": rmse_against(reference_images, interpolated)})
+        if kk == k:
+            uncompressed = (ds, q, seconds, images(interpolated))
+
+    ds, q, precompute_seconds, target = uncompressed
+    configs = [("quantization", PrtCompressOptions(mode="lloyd"))]
+    configs += [("sh", PrtCompressOptions(mode="sh", sh_order=n)) for n in orders]
+    configs += [("reference_points", PrtCompressOptions(reference_fraction=f, sh_order=n, weights=w))
+                for f in reference_fractions for n in (2, 3) for w in ("barycentric", "least_squares")]
+    default_prt = None
+    for sweep, options in configs:
+        t = time.perf_counter()
+        prt = compress_prt(q, ds, surface.positions, surface.faces, material.eta, options)
+        seconds = precompute_seconds + time.perf_counter() - t
+        decoded = [evaluate(prt, test[j]) for j in range(lights)]
+        rows.append({"sweep": sweep, "mode": options.mode, "k": k, "sh_order": prt.sh_order,
+                     "reference_fraction": options.reference_fraction if options.mode == "refs+sh" else 0.0,
+                     "weights": options.weights if options.mode == "refs+sh" else "",
+                     "bytes_per_vertex": bytes_per_vertex(prt)["total"], "seconds": seconds,
+                     "rmse_image": rmse_against(target, decoded)})
+        if options == PrtCompressOptions():
+            default_prt = prt
+    if default_prt is None:
+        default_prt = compress_prt(q, ds, surface.positions, surface.faces, material.eta)
+
+    light = RenderLight(False, tuple(test[0]), 1.0)
+    frame_sss = renderer.frame_ms([{**base, "prt": default_prt}], camera, light)
+    frame_plain = renderer.frame_ms([{**base, "q": exact[:, :, 0].T}], camera, light)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = out_dir / f"{path.stem}.tradeoff.prt"
+    result = {"asset": str(path), "vertices": len(surface.positions), "material": material.name,
+              "mm_per_unit": mm_per_unit, "lights": test.tolist(), "image_size": [size, size], "rows": rows,
+              "frame_ms_sss": frame_sss, "frame_ms_plain": frame_plain,
+              "frame_ratio": frame_sss / max(frame_plain, 1e-9),
+              "outputs": {"json": f"{stem}.json", "csv": f"{stem}.csv", "plot": f"{stem}.png"}}
+    _write(result, stem)
+    return result
+
+
+def _write(result: dict, stem: Path) -> None:
+    rows = result["rows"]
+    with atomic_path(f"{stem}.json") as tmp:
+        Path(tmp).write_text(json.dumps(result, indent=1))
+    with atomic_path(f"{stem}.csv") as tmp, open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    _plot(rows, f"{stem}.png")
+
+
+def _plot(rows: list[dict], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 4, figsize=(20, 4.5))
+    k_rows = [r for r in rows if r["sweep"] == "directions"]
+    axes[0].plot([r["k"] for r in k_rows], [r["rmse_image"] for r in k_rows], "o-")
+    axes[0].set(xlabel="light directions K", ylabel="image RMSE", title="interpolation over directions (cf. Fig. 5)")
+    for n in (2, 3):
+        for w, style in (("barycentric", "o-"), ("least_squares", "s--")):
+            sel = [r for r in rows if r["sweep"] == "reference_points" and r["sh_order"] == n and r["weights"] == w]
+            axes[1].plot([r["reference_fraction"] for r in sel], [r["rmse_image"] for r in sel], style,
+                         label=f"SH n={n}, {w}")
+    axes[1].set(xscale="log", xlabel="reference points / vertices", ylabel="image RMSE",
+                title="reference points + SH (cf. Fig. 9)")
+    axes[1].legend(fontsize=8)
+    for sweep, marker in (("quantization", "*"), ("sh", "^"), ("reference_points", "o"), ("directions", "x")):
+        sel = [r for r in rows if r["sweep"] == sweep]
+        axes[2].scatter([r["bytes_per_vertex"] for r in sel], [r["rmse_image"] for r in sel], marker=marker, label=sweep)
+    compressed = sorted((r for r in rows if r["sweep"] != "directions"), key=lambda r: r["bytes_per_vertex"])
+    front, best = [], np.inf
+    for r in compressed:
+        if r["rmse_image"] < best:
+            best = r["rmse_image"]
+            front.append(r)
+    axes[2].plot([r["bytes_per_vertex"] for r in front], [r["rmse_image"] for r in front], "k-", lw=1, label="Pareto front")
+    axes[2].set(xscale="log", yscale="log", xlabel="bytes per vertex (RGB, all)", ylabel="image RMSE",
+                title="accuracy vs storage")
+    axes[2].legend(fontsize=8)
+    for sweep, marker in (("quantization", "*"), ("sh", "^"), ("reference_points", "o"), ("directions", "x")):
+        sel = [r for r in rows if r["sweep"] == sweep]
+        axes[3].scatter([r["seconds"] for r in sel], [r["rmse_image"] for r in sel], marker=marker, label=sweep)
+    axes[3].set(yscale="log", xlabel="bake seconds (precompute + compress)", ylabel="image RMSE",
+                title="accuracy vs bake time")
+    axes[3].legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=90)
+    plt.close(fig)
