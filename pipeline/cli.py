@@ -11,6 +11,7 @@ import numpy as np
 
 from .config import EMPTY_CONFIG, ConfigError, load_config
 from .options import BAKE_DEFAULTS
+from .prt_compress import MODES, WEIGHTS
 
 
 def _bake(args) -> int:
@@ -165,11 +166,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--prt-directions", type=int, help=f"prt: light directions K (default {BAKE_DEFAULTS.prt_directions})")
     b.add_argument("--prt-energy-dropped", type=float,
                    help=f"prt: fraction of R_d the gather radius may drop (default {BAKE_DEFAULTS.prt_energy_dropped})")
-    b.add_argument("--prt-mode", choices=["refs+sh", "sh", "lloyd"], help=f"prt compression (default {BAKE_DEFAULTS.prt_mode})")
+    b.add_argument("--prt-mode", choices=MODES, help=f"prt compression (default {BAKE_DEFAULTS.prt_mode})")
     b.add_argument("--prt-reference-fraction", type=float,
                    help=f"prt: reference points per vertex (default {BAKE_DEFAULTS.prt_reference_fraction})")
     b.add_argument("--prt-sh-order", type=int, help=f"prt: SH order of Δq (default {BAKE_DEFAULTS.prt_sh_order})")
-    b.add_argument("--prt-weights", choices=["barycentric", "least_squares"],
+    b.add_argument("--prt-weights", choices=WEIGHTS,
                    help=f"prt: reference weights (default {BAKE_DEFAULTS.prt_weights})")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")

@@ -8,66 +8,99 @@ import numpy as np
 #: Values the levels are fitted to at most; the rest are only encoded (a 1M sample fixes 256
 #: levels to well within their spacing).
 FIT_SAMPLE = 1_000_000
+#: Values encoded at once (bounds the int64 temporaries of `np.searchsorted` to ~64 MB).
+ENCODE_CHUNK = 8_000_000
 
 
-def lloyd_quantizer(values: np.ndarray, levels: int = 256, iterations: int = 60, tol: float = 1e-6,
-                    seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def lloyd_quantizer(values: np.ndarray, levels: int = 256, weights: np.ndarray | None = None,
+                    iterations: int = 60, tol: float = 1e-6, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Fit a Lloyd-Max quantiser to `values` and encode them.
+
+    Starts from levels with density ∝ p(x)^(1/3) (the high-resolution optimum, closer to the fixed
+    point than quantiles on long-tailed data such as q), then alternates nearest-level cells and
+    cell centroids; the (weighted) mean squared error never increases from one iteration to the
+    next.
 
     Parameters
     ----------
-    values : (...) float64
-        Finite values.
+    values : (...) float
+        Finite values; more than `FIT_SAMPLE` are subsampled for the fit, all are encoded.
     levels : int
         2 .. 65536 reconstruction levels.
+    weights : (...) float64, optional
+        Non-negative importance of each value (same shape as `values`); uniform by default.
     iterations, tol : int, float
         Stop after `iterations` or when the mean squared error improves by less than `tol`
         relative.
+    seed : int
+        Subsampling seed.
 
     Returns
     -------
     lut : (levels,) float64
         Sorted reconstruction levels (repeated at the top when the data has fewer distinct values).
     codes : values.shape uint8 (levels <= 256) or uint16
+        Index of the nearest level of each value.
     """
-    values = np.asarray(values, dtype=np.float64)
+    values = np.asarray(values)  # converted to float64 piecewise: 100M float32 values stay 400 MB
     if not 2 <= levels <= 65536:
         raise ValueError(f"lloyd: levels must be in [2, 65536], got {levels}")
-    if values.size == 0 or not np.all(np.isfinite(values)):
+    if values.dtype.kind not in "fiu" or values.size == 0 or not np.all(np.isfinite(values)):
         raise ValueError("lloyd: need a non-empty array of finite values")
+    if iterations < 0 or not tol >= 0:
+        raise ValueError(f"lloyd: iterations and tol must be non-negative, got {iterations}, {tol}")
     flat = values.ravel()
-    sample = flat if flat.size <= FIT_SAMPLE else np.random.default_rng(seed).choice(flat, FIT_SAMPLE, replace=False)
-    sample = np.sort(sample)
-    distinct = np.unique(sample)
+    pick = (slice(None) if flat.size <= FIT_SAMPLE
+            else np.random.default_rng(seed).choice(flat.size, FIT_SAMPLE, replace=False))
+    sample = flat[pick].astype(np.float64)
+    if weights is None:
+        w = np.ones_like(sample)
+    else:
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != values.shape or not np.all(np.isfinite(weights)) or weights.min() < 0:
+            raise ValueError(f"lloyd: weights must be finite, non-negative and shaped like the values "
+                             f"{values.shape}, got {weights.shape}")
+        w = weights.ravel()[pick]
+        if not np.any(w > 0):
+            raise ValueError("lloyd: all (sampled) weights are zero; give some values a positive weight")
+    order = np.argsort(sample, kind="stable")
+    sample, w = sample[order], w[order]
+    distinct = np.unique(sample[w > 0])
     if len(distinct) <= levels:
         lut = np.concatenate([distinct, np.full(levels - len(distinct), distinct[-1])])
     else:
-        lut = _companded_start(sample, levels)
-        cumsum = np.concatenate([[0.0], np.cumsum(sample)])
-        previous = None
+        lut = _companded_start(sample, w, levels)
+        cum_w = np.concatenate([[0.0], np.cumsum(w)])
+        cum_wx = np.concatenate([[0.0], np.cumsum(w * sample)])
+        previous = _distortion(sample, w, lut)
         for _ in range(iterations):
-            edges = np.searchsorted(sample, 0.5 * (lut[1:] + lut[:-1]))
-            bounds = np.concatenate([[0], edges, [len(sample)]])
-            counts = np.diff(bounds)
-            sums = cumsum[bounds[1:]] - cumsum[bounds[:-1]]
+            # Cells of the sorted sample between consecutive midpoints; centroids from prefix sums.
+            bounds = np.concatenate([[0], np.searchsorted(sample, 0.5 * (lut[1:] + lut[:-1])), [len(sample)]])
+            mass = cum_w[bounds[1:]] - cum_w[bounds[:-1]]
+            moment = cum_wx[bounds[1:]] - cum_wx[bounds[:-1]]
             # An empty cell keeps its level (it cannot lower the error anywhere).
-            lut = np.sort(np.where(counts > 0, sums / np.maximum(counts, 1), lut))
-            mse = np.mean((sample - lut[_encode(sample, lut)]) ** 2)
-            if previous is not None and previous - mse <= tol * previous:
+            lut = np.sort(np.where(mass > 0, moment / np.where(mass > 0, mass, 1.0), lut))
+            mse = _distortion(sample, w, lut)
+            if previous - mse <= tol * previous:
                 break
             previous = mse
-    codes = _encode(flat, lut).astype(np.uint8 if levels <= 256 else np.uint16)
+    codes = np.empty(flat.size, dtype=np.uint8 if levels <= 256 else np.uint16)
+    for s in range(0, flat.size, ENCODE_CHUNK):
+        codes[s:s + ENCODE_CHUNK] = _encode(flat[s:s + ENCODE_CHUNK].astype(np.float64), lut)
     return lut, codes.reshape(values.shape)
 
 
-def _companded_start(sample: np.ndarray, levels: int) -> np.ndarray:
-    """Levels spaced with density ∝ p(x)^(1/3), the high-resolution optimum (Panter-Dite), so
-    Lloyd starts near its fixed point even for long-tailed data such as q."""
+def _companded_start(sample: np.ndarray, w: np.ndarray, levels: int) -> np.ndarray:
+    """Levels spaced with density ∝ p(x)^(1/3), the high-resolution optimum (Panter-Dite)."""
     bins = max(4 * levels, 1024)
-    density, edges = np.histogram(sample, bins=bins)
-    weight = np.cumsum(np.concatenate([[0.0], density.astype(np.float64) ** (1.0 / 3.0)]))
-    lut = np.interp((np.arange(levels) + 0.5) / levels * weight[-1], weight, edges)
-    return np.sort(lut)
+    density, edges = np.histogram(sample, bins=bins, weights=w)
+    cumulative = np.cumsum(np.concatenate([[0.0], density ** (1.0 / 3.0)]))
+    return np.sort(np.interp((np.arange(levels) + 0.5) / levels * cumulative[-1], cumulative, edges))
+
+
+def _distortion(sample: np.ndarray, w: np.ndarray, lut: np.ndarray) -> float:
+    """Weighted mean squared error of nearest-level quantisation."""
+    return float(np.sum(w * (sample - lut[_encode(sample, lut)]) ** 2) / np.sum(w))
 
 
 def _encode(values: np.ndarray, lut: np.ndarray) -> np.ndarray:
@@ -76,7 +109,12 @@ def _encode(values: np.ndarray, lut: np.ndarray) -> np.ndarray:
 
 
 def snr_db(values: np.ndarray, decoded: np.ndarray) -> float:
-    """Signal-to-noise ratio 10 log10(Σ x² / Σ (x - x̂)²) in dB (inf when exact)."""
-    noise = float(np.sum((np.asarray(values) - np.asarray(decoded)) ** 2))
-    signal = float(np.sum(np.asarray(values) ** 2))
-    return float("inf") if noise == 0.0 else 10.0 * np.log10(signal / noise)
+    """Signal-to-noise ratio 10 log10(Σ x² / Σ (x - x̂)²) in dB (inf when exact, -inf for a zero signal)."""
+    values, decoded = np.asarray(values, dtype=np.float64), np.asarray(decoded, dtype=np.float64)
+    if values.shape != decoded.shape:
+        raise ValueError(f"lloyd: snr needs equal shapes, got {values.shape} and {decoded.shape}")
+    noise = float(np.sum((values - decoded) ** 2))
+    signal = float(np.sum(values ** 2))
+    if noise == 0.0:
+        return float("inf")
+    return float("-inf") if signal == 0.0 else 10.0 * np.log10(signal / noise)

@@ -102,6 +102,8 @@ def check_options(o: BakeOptions) -> None:
                          f"got {o.prt_mode!r}, {o.prt_weights!r}")
     if not (0.0 < o.prt_reference_fraction <= 1.0):
         raise ValueError(f"prt_reference_fraction must be in (0, 1], got {o.prt_reference_fraction}")
+    if o.prt_mode == "sh" and o.prt_sh_order < 1:
+        raise ValueError("prt_mode 'sh' needs prt_sh_order >= 1 (it has no reference points)")
     if not (0 <= o.prt_sh_order <= MAX_ORDER) or o.prt_directions < o.prt_sh_order**2:
         raise ValueError(f"prt_sh_order must be in [0, {MAX_ORDER}] with prt_directions >= order², "
                          f"got {o.prt_sh_order}")

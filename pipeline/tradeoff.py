@@ -24,7 +24,7 @@ from .dipole import DipoleParams
 from .directions import direction_set, interpolation_weights
 from .load import load_scene
 from .materials import Material
-from .prt_compress import PrtCompressOptions, bytes_per_vertex, compress_prt, evaluate
+from .prt_compress import WEIGHTS, PrtCompressOptions, bytes_per_vertex, compress_prt, evaluate
 from .prt_precompute import irradiance_signal
 from .scatter_operator import SCATTER_DEFAULTS, scatter_operator
 from .visibility import direction_visibility
@@ -103,7 +103,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     configs = [("quantization", PrtCompressOptions(mode="lloyd"))]
     configs += [("sh", PrtCompressOptions(mode="sh", sh_order=n)) for n in orders]
     configs += [("reference_points", PrtCompressOptions(reference_fraction=f, sh_order=n, weights=w))
-                for f in reference_fractions for n in (2, 3) for w in ("barycentric", "least_squares")]
+                for f in reference_fractions for n in (0, 2, 3) for w in WEIGHTS]
     default_prt = None
     for sweep, options in configs:
         t = time.perf_counter()
@@ -156,8 +156,8 @@ def _plot(rows: list[dict], path: str) -> None:
     k_rows = [r for r in rows if r["sweep"] == "directions"]
     axes[0].plot([r["k"] for r in k_rows], [r["rmse_image"] for r in k_rows], "o-")
     axes[0].set(xlabel="light directions K", ylabel="image RMSE", title="interpolation over directions (cf. Fig. 5)")
-    for n in (2, 3):
-        for w, style in (("barycentric", "o-"), ("least_squares", "s--")):
+    for n in (0, 2, 3):
+        for w, style in (("barycentric", "o-"), ("least_squares", "s--"), ("best_fit", "d:")):
             sel = [r for r in rows if r["sweep"] == "reference_points" and r["sh_order"] == n and r["weights"] == w]
             axes[1].plot([r["reference_fraction"] for r in sel], [r["rmse_image"] for r in sel], style,
                          label=f"SH n={n}, {w}")

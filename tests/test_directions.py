@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from sssbake.pipeline.directions import (
+    LOOKUP_SIZE,
     direction_set,
     fibonacci_sphere,
     interpolation_weights,
@@ -53,6 +54,16 @@ def test_interpolation_is_exact_at_the_set_and_convex():
     assert np.all(weights >= 0) and np.allclose(weights.sum(axis=1), 1.0)
 
 
+def test_interpolation_reproduces_the_containing_cone_exactly():
+    ds = direction_set(100, lookup_size=8)
+    w = random_directions(3000, seed=3)
+    index, weights = interpolation_weights(ds, w)
+    # the weights are the barycentrics of the ray through w on the flat hull triangle
+    hit = np.einsum("mk,mkj->mj", weights, ds.directions[index])
+    np.testing.assert_allclose(np.cross(hit, w), 0.0, atol=1e-12)
+    assert np.all(np.einsum("ij,ij->i", hit, w) > 0)
+
+
 def test_interpolation_error_falls_as_k_grows():
     w = random_directions(2000)
     f = lambda d: np.exp(2.0 * d @ np.array([0.3, 0.5, 0.8]))  # noqa: E731
@@ -64,7 +75,17 @@ def test_interpolation_error_falls_as_k_grows():
     assert all(b < 0.5 * a for a, b in zip(errors, errors[1:])), errors  # second order: ~1/K
 
 
-@pytest.mark.parametrize("k, size", [(200, 64), (200, 8), (1000, 32)])
+def test_lookup_texels_hold_the_triangle_containing_their_centre():
+    ds = direction_set(200)
+    size = ds.lookup.shape[0]
+    assert size == LOOKUP_SIZE == 32
+    uv = (np.stack(np.meshgrid(np.arange(size), np.arange(size)), -1).reshape(-1, 2) + 0.5) / size
+    centres = octahedral_decode(uv)
+    beta = np.einsum("mij,mj->mi", ds.inverse[ds.lookup.ravel()], centres)  # row-major: lookup[v, u]
+    assert beta.min() >= -1e-12
+
+
+@pytest.mark.parametrize("k, size", [(200, LOOKUP_SIZE), (200, 16), (1000, 32), (64, 8)])
 def test_lookup_walk_matches_the_exact_triangle(k, size):
     ds = direction_set(k, lookup_size=size)
     w = random_directions(20000 if k <= 200 else 4000, seed=k)

@@ -1,115 +1,163 @@
-"""prt compression: reference points, least-squares weights, Lloyd tables, SH of Δq, decoding."""
+"""prt compression and decoding: error falls with bytes spent, the baseline is the Lloyd tables,
+the runtime's interpolation path, and the byte count."""
 
 import numpy as np
 import pytest
+import trimesh
 
-from sssbake.pipeline.prt_compress import (
-    PrtCompressOptions,
-    bytes_per_vertex,
-    compress_prt,
-    decode_at_directions,
-    evaluate,
-)
-from sssbake.pipeline.reference_points import least_squares_weights, reference_points
+from sssbake.pipeline.clean import area_weighted_normals
+from sssbake.pipeline.directions import direction_set, interpolation_weights
+from sssbake.pipeline.prt_compress import PrtCompressOptions, compress_prt
+from sssbake.pipeline.prt_decode import bytes_per_vertex, decode_at_directions, evaluate
+from sssbake.pipeline.sh import sh_basis, sh_fit_matrix
 
 
-def test_reference_points_attach_every_vertex(blob):
-    v, f, _, _ = blob
-    refs = reference_points(v, f, 100)
-    assert 60 <= len(refs.ref_vertices) <= 140
-    np.testing.assert_allclose(refs.weights.sum(axis=1), 1.0)
-    assert np.all(refs.weights >= 0)
-    # A reference point is its own weight-1 corner.
-    corners = refs.ref_vertices[refs.triangles[refs.vertex_triangle]]
-    own = np.isin(np.arange(len(v)), refs.ref_vertices)
-    hit = corners[own][np.arange(own.sum()), refs.weights[own].argmax(axis=1)]
-    np.testing.assert_array_equal(hit, np.flatnonzero(own))
-    np.testing.assert_allclose(refs.weights[own].max(axis=1), 1.0, atol=1e-9)
+def synthetic_q(positions, faces, directions, shadow=True):
+    """(3, n, K) q-like field: clamped lobes about the vertex normal times a smooth tint, and a
+    sharp cast-shadow edge (half the vertices lose the lights with ω_x < 0.2)."""
+    normals = area_weighted_normals(positions, faces)
+    cos = normals @ directions.T
+    shape = 0.6 * np.clip(cos, 0.0, None) ** 1.3 + 0.25 * np.clip(0.4 + 0.6 * cos, 0.0, None) ** 2
+    if shadow:
+        shape = shape * np.where((positions[:, 1:2] > 0.0) & (directions[None, :, 0] < 0.2), 0.3, 1.0)
+    tint = 0.5 + 0.15 * np.sin(2.0 * positions[:, :1]) + 0.1 * positions[:, 2:3]
+    return np.stack([0.3 * shape * tint * (1.0 - 0.15 * c) for c in range(3)])
 
 
-def test_barycentric_weights_reproduce_linear_fields_on_a_plane():
-    g = np.linspace(0.0, 1.0, 21)
-    xx, yy = np.meshgrid(g, g)
-    v = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)])
-    idx = np.arange(441).reshape(21, 21)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
-    refs = reference_points(v, faces, 40)
-    field = 2.0 * v[:, 0] - 3.0 * v[:, 1] + 0.5
-    corners = refs.ref_vertices[refs.triangles[refs.vertex_triangle]]
-    error = np.abs((refs.weights * field[corners]).sum(axis=1) - field)
-    # Exact wherever the vertex projects inside its triangle; only clamped vertices near the
-    # simplified boundary (which moves inwards) may differ.
-    assert np.mean(error < 1e-9) > 0.8
-    interior = (np.abs(v[:, :2] - 0.5) < 0.3).all(axis=1)
-    assert error[interior].max() < 1e-9
+@pytest.fixture(scope="module")
+def torus():
+    t = trimesh.creation.torus(1.0, 0.4, major_sections=40, minor_sections=16)
+    v, f = np.asarray(t.vertices, dtype=np.float64), np.asarray(t.faces, dtype=np.int64)
+    ds = direction_set(48, lookup_size=16)
+    return v, f, ds, synthetic_q(v, f, ds.directions)
 
 
-def test_least_squares_weights_never_fit_worse(blob):
-    v, f, _, q = blob
-    refs = reference_points(v, f, 80)
-    q_ref = q[:, refs.ref_vertices, :]
-    corners = refs.triangles[refs.vertex_triangle]
-
-    def misfit(w):
-        approx = sum(w[None, :, k, None] * q_ref[:, corners[:, k], :] for k in range(3))
-        return ((q - approx) ** 2).sum(axis=(0, 2))
-
-    lsq = least_squares_weights(q, q_ref, refs)
-    np.testing.assert_allclose(lsq.sum(axis=1), 1.0)
-    assert np.all(misfit(lsq) <= misfit(refs.weights) * (1 + 1e-9) + 1e-18)
-    assert misfit(lsq).sum() < 0.9 * misfit(refs.weights).sum()
+def rms(prt, q):
+    return float(np.sqrt(np.mean((decode_at_directions(prt) - q) ** 2)))
 
 
-def test_lloyd_mode_reconstructs_within_the_tables(blob):
-    v, f, ds, q = blob
-    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="lloyd"))
-    decoded = decode_at_directions(prt)
-    assert prt.sh_order == 0 and len(prt.ref_codes) == len(v)
-    for c in range(3):
-        # nearest-level quantisation: half the widest gap, or the distance past the outer levels
-        levels = np.sort(prt.lut[c].astype(np.float64))
-        worst = max(np.diff(levels).max() / 2, q[c].max() - levels[-1], levels[0] - q[c].min()) + 1e-6 * levels.max()
-        assert np.abs(decoded[c] - q[c]).max() <= worst
+def test_error_falls_with_reference_points_and_sh_order(torus):
+    v, f, ds, q = torus
 
+    def run(**kw):
+        return rms(compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(**kw)), q)
 
-def test_error_falls_with_sh_order_and_reference_points(blob):
-    v, f, ds, q = blob
-
-    def rms(options):
-        return np.sqrt(np.mean((decode_at_directions(compress_prt(q, ds, v, f, 1.3, options)) - q) ** 2))
-
-    by_order = [rms(PrtCompressOptions(mode="sh", sh_order=n, dq_percentile=100)) for n in (1, 2, 3, 5)]
+    # the paper's Fig. 6: SH alone, rising order (K = 48 holds order 6 at most)
+    by_order = [run(mode="sh", sh_order=n) for n in (1, 2, 3, 4, 6)]
     assert all(b < a for a, b in zip(by_order, by_order[1:])), by_order
-    by_refs = [rms(PrtCompressOptions(reference_fraction=r, sh_order=2)) for r in (0.01, 0.05, 0.2)]
-    assert all(b < a for a, b in zip(by_refs, by_refs[1:])), by_refs
-    assert rms(PrtCompressOptions(sh_order=3)) < by_order[2]  # reference points beat SH alone
+    # the paper's Fig. 9: more reference points, fixed n = 3; and more Δq orders at fixed refs
+    by_refs = [run(reference_count=r, sh_order=3, weights="barycentric") for r in (20, 60, 180)]
+    assert all(b < 0.9 * a for a, b in zip(by_refs, by_refs[1:])), by_refs
+    by_dq = [run(reference_count=60, sh_order=n) for n in (0, 1, 2, 3, 4)]
+    assert all(b < a for a, b in zip(by_dq, by_dq[1:])), by_dq
+    # reference points carry what SH of the same order cannot, and fitted weights help
+    assert by_refs[1] < 0.7 * by_order[2]
+    assert run(reference_count=60, sh_order=0, weights="least_squares") < run(
+        reference_count=60, sh_order=0, weights="barycentric")
+    assert run(reference_count=60, sh_order=0, weights="best_fit") < run(
+        reference_count=60, sh_order=0, weights="least_squares")
 
 
-def test_evaluate_at_set_directions_equals_decode(blob):
-    v, f, ds, q = blob
-    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(weights="least_squares"))
+def test_lloyd_mode_is_the_nearest_level_of_each_value(torus):
+    v, f, ds, q = torus
+    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="lloyd"))
+    assert prt.sh_order == 0 and len(prt.ref_codes) == len(v) and prt.weight_scale == 1.0
     decoded = decode_at_directions(prt)
-    for j in (0, 17, 63):
+    for c in range(3):
+        lut = prt.lut[c].astype(np.float64)
+        nearest = lut[np.abs(q[c][..., None] - lut).argmin(axis=-1)]
+        np.testing.assert_allclose(np.abs(decoded[c] - q[c]), np.abs(nearest - q[c]), atol=1e-12)
+    assert np.sqrt(np.mean((decoded - q) ** 2)) < 2e-3 * q.max()
+
+
+def test_sh_codes_are_within_half_a_code_of_the_residual(torus):
+    v, f, ds, q = torus
+    for mode in ("sh", "refs+sh"):
+        prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode=mode, reference_count=40, sh_order=3,
+                                                                 dq_percentile=100))
+        # What is left after decoding has, in each SH coefficient, at most half a code's worth.
+        left = np.einsum("ij,cnj->nci", sh_fit_matrix(ds.directions, 3), q - decode_at_directions(prt))
+        assert np.all(np.abs(left) <= prt.dq_scale.astype(np.float64) / 254.0 * (1 + 1e-4) + 1e-9)
+    # least-error ranges clip a few outliers and code the rest finer: lower error overall
+    mse = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_count=40, sh_order=3))
+    assert rms(mse, q) <= rms(prt, q)
+
+
+def test_band_limited_q_is_coded_by_sh_alone(torus):
+    v, f, ds, _ = torus
+    coeffs = np.random.default_rng(0).normal(size=(3, len(v), 9)) * [1.0, 0.5, 0.2, 0.1, 0.1, 0.05, 0.05, 0.05, 0.02]
+    q = coeffs @ sh_basis(ds.directions, 3).T
+    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="sh", sh_order=3, dq_percentile=100))
+    assert len(prt.ref_codes) == 0 and not prt.weight_codes.any()
+    step = prt.dq_scale.astype(np.float64) / 127.0  # (3, 9)
+    decoded_coeffs = np.einsum("ij,cnj->cni", sh_fit_matrix(ds.directions, 3), decode_at_directions(prt))
+    assert np.all(np.abs(decoded_coeffs - coeffs) <= step[:, None, :] / 2 * (1 + 1e-4) + 1e-9)
+
+
+def test_evaluate_follows_the_runtime_interpolation(torus):
+    v, f, ds, q = torus
+    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_count=60, sh_order=2, weights="best_fit"))
+    decoded = decode_at_directions(prt)
+    for j in (0, 17, 47):  # at the set's directions: the tables' own values
         np.testing.assert_allclose(evaluate(prt, ds.directions[j]), decoded[:, :, j], rtol=1e-5, atol=1e-7)
-    # per-vertex directions (a point light) work too
-    per_vertex = np.repeat(ds.directions[5:6], len(v), axis=0)
-    np.testing.assert_allclose(evaluate(prt, per_vertex), decoded[:, :, 5], rtol=1e-5, atol=1e-7)
+    # elsewhere: the exact hull interpolation of the reference part plus the SH part
+    w = np.random.default_rng(1).normal(size=(len(v), 3))
+    index, beta = interpolation_weights(ds, w)
+    basis = sh_basis(w / np.linalg.norm(w, axis=1, keepdims=True), 2)
+    coeffs = prt.dq_codes / 127.0 * prt.dq_scale.astype(np.float64)
+    sh_part = np.einsum("nci,ni->cn", coeffs, basis)
+    sh_at_set = np.einsum("nci,ki->cnk", coeffs, sh_basis(ds.directions, 2))
+    table_part = np.einsum("cnk,nk->cn", np.take_along_axis(decoded - sh_at_set, index[None], axis=2), beta)
+    np.testing.assert_allclose(evaluate(prt, w), table_part + sh_part, rtol=1e-5, atol=1e-7)
+    # a subset of vertices
+    some = np.array([3, 100, 5])
+    np.testing.assert_allclose(evaluate(prt, w[some], vertices=some), (table_part + sh_part)[:, some],
+                               rtol=1e-5, atol=1e-7)
 
 
-def test_bytes_per_vertex_counts_every_block(blob):
-    v, f, ds, q = blob
-    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_fraction=0.05, sh_order=3))
+def test_bytes_per_vertex_matches_a_hand_count(torus):
+    v, f, ds, q = torus
+    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_count=40, sh_order=3))
+    n, k, r, fr = len(v), 48, len(prt.ref_codes), len(prt.ref_triangles)
+    t = 2 * k - 4
     b = bytes_per_vertex(prt)
-    n, r, k = len(v), len(prt.ref_codes), len(ds.directions)
-    assert b["_SSS_PRT_REF"] == 4 and b["_SSS_PRT_W"] == 4 and b["_SSS_PRT_DQ"] == 28  # 27 codes -> 7 VEC4
+    assert (b["_SSS_PRT_REF"], b["_SSS_PRT_W"], b["_SSS_PRT_DQ"]) == (4, 4, 28)  # 27 codes -> 7 VEC4 snorm8
+    tables = (r * k * 3          # reference codes, uint8
+              + fr * 3 * 4       # reference triangles, uint32
+              + k * 3 * 4        # directions, float32
+              + t * 3 * 4 * 2    # hull triangles and neighbours, uint32
+              + t * 9 * 4        # inverses, float32
+              + 16 * 16 * 4      # lookup, uint32
+              + 3 * 256 * 4      # LUT, float32
+              + 3 * 9 * 4)       # Δq scales, float32
+    assert b["total"] == pytest.approx(36 + tables / n)
     assert b["refCodes"] == pytest.approx(r * k * 3 / n)
-    assert b["total"] == pytest.approx(sum(val for key, val in b.items() if key != "total"))
+    sh_only = bytes_per_vertex(compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="sh", sh_order=1)))
+    assert sh_only["_SSS_PRT_DQ"] == 4 and sh_only["refCodes"] == 0 and sh_only["refTriangles"] == 0
 
 
-def test_bad_options_are_refused(blob):
-    v, f, ds, q = blob
+def test_degenerate_signals_stay_finite(torus):
+    v, f, ds, _ = torus
+    for q in (np.zeros((3, len(v), 48)), np.full((3, len(v), 48), 0.2)):
+        for options in (PrtCompressOptions(reference_count=30, sh_order=2, weights="best_fit"),
+                        PrtCompressOptions(mode="sh", sh_order=2), PrtCompressOptions(mode="lloyd")):
+            prt = compress_prt(q, ds, v, f, 1.3, options)
+            assert all(np.all(np.isfinite(getattr(prt, name))) for name in ("lut", "dq_scale"))
+            np.testing.assert_allclose(decode_at_directions(prt), q, atol=1e-6)
+
+
+def test_bad_input_is_refused(torus):
+    v, f, ds, q = torus
     with pytest.raises(ValueError, match="mode must be one of"):
         compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="zip"))
     with pytest.raises(ValueError, match="q must be"):
         compress_prt(q[:, :10], ds, v, f, 1.3)
+    with pytest.raises(ValueError, match="NaN"):
+        compress_prt(np.where(q > 0.1, np.nan, q), ds, v, f, 1.3)
+    with pytest.raises(ValueError, match="needs at least 49 directions"):
+        compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="sh", sh_order=7))
+    with pytest.raises(ValueError, match="needs sh_order >= 1"):
+        compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="sh", sh_order=0))
+    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="sh", sh_order=1))
+    with pytest.raises(ValueError, match="omega must be"):
+        evaluate(prt, np.ones((2, 3)))

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.special import sph_harm_y
 
-from sssbake.pipeline.directions import fibonacci_sphere
-from sssbake.pipeline.sh import MAX_ORDER, sh_basis, sh_fit_matrix
+from sssbake.pipeline.directions import direction_set, fibonacci_sphere
+from sssbake.pipeline.sh import MAX_ORDER, sh_basis, sh_fit_matrix, sh_project
 
 
 def test_basis_is_orthonormal():
@@ -45,8 +45,34 @@ def test_fit_error_falls_with_order():
     assert all(b < a for a, b in zip(errors, errors[1:])), errors
 
 
+def test_project_takes_a_direction_set_and_batches():
+    ds = direction_set(100, lookup_size=8)
+    coeffs = np.random.default_rng(7).normal(size=(3, 5, 16))
+    values = coeffs @ sh_basis(ds.directions, 4).T  # (3, 5, K)
+    np.testing.assert_allclose(sh_project(values, ds, 4), coeffs, atol=1e-10)
+    np.testing.assert_allclose(sh_project(values, ds.directions, 4), coeffs, atol=1e-10)
+
+
+def test_least_squares_beats_quadrature_on_few_directions():
+    d = fibonacci_sphere(64)
+    values = np.clip(d @ np.array([0.3, 0.4, 0.866]), 0.0, None) ** 1.5
+    for order in (3, 5, 7):
+        err = {m: np.sqrt(np.mean((sh_basis(d, order) @ sh_project(values, d, order, m) - values) ** 2))
+               for m in ("lsq", "quadrature")}
+        assert err["lsq"] <= err["quadrature"] * (1 + 1e-9), (order, err)
+    # on band-limited data quadrature on Fibonacci points is inexact, least squares exact
+    coeffs = np.random.default_rng(2).normal(size=25)
+    values = sh_basis(d, 5) @ coeffs
+    assert np.abs(sh_project(values, d, 5, "quadrature") - coeffs).max() > 1e-3
+    np.testing.assert_allclose(sh_project(values, d, 5, "lsq"), coeffs, atol=1e-10)
+
+
 def test_orders_out_of_range_are_refused():
     with pytest.raises(ValueError, match="order must be in"):
         sh_basis(np.array([[0.0, 0.0, 1.0]]), MAX_ORDER + 1)
     with pytest.raises(ValueError, match="cannot determine"):
         sh_fit_matrix(fibonacci_sphere(8), 3)
+    with pytest.raises(ValueError, match="method"):
+        sh_project(np.ones(8), fibonacci_sphere(8), 2, "exact")
+    with pytest.raises(ValueError, match="axis of 8 directions"):
+        sh_project(np.ones(7), fibonacci_sphere(8), 2)
