@@ -1,8 +1,15 @@
 """The reference runtime: renders meshes with the shipped GLSL, headless (moderngl on EGL).
 
-Two vertex stages share one final pass (``sss_surface.frag``): ``prt.vert`` decodes the exported
-prt data on the GPU, ``vertex_q.vert`` takes radiance computed per vertex elsewhere (the offline
-reference, a baseline). Images are linear float RGB.
+Three kinds of draw, told apart by the keys of an item (see `Renderer.render`):
+
+- ``prt``: ``prt.vert`` decodes the exported prt data on the GPU per vertex;
+- ``q``: ``vertex_q.vert`` takes scattered radiance computed per vertex elsewhere (the offline
+  reference, a technique evaluated on the CPU);
+- ``albedo``: ``plain.vert``/``plain.frag``, Lambert plus specular without scattering (the
+  baseline of frame times).
+
+The first two share one final pass (``sss_surface.frag``): exit Fresnel F_t(η, ω_o) per pixel plus
+the surface's reflection. Images are linear float RGB.
 """
 
 from __future__ import annotations
@@ -13,15 +20,21 @@ from dataclasses import dataclass
 import numpy as np
 
 from .prt_data import PrtData
-from .prt_runtime import per_vertex_arrays, upload
-from .shaders import shader_source
+from .prt_runtime import TABLE_WIDTH, per_vertex_arrays, upload
+from .sh import MAX_ORDER as SH_MAX_ORDER
+from .shaders import DIALECTS, shader_source
+
+#: Vertex and fragment stage of each kind of draw.
+PROGRAMS = {"prt": ("prt.vert", "sss_surface.frag"), "q": ("vertex_q.vert", "sss_surface.frag"),
+            "albedo": ("plain.vert", "plain.frag")}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Camera:
     """Attributes
     ----------
     eye : (3,) float
+        World position of the eye.
     view_projection : (4, 4) float64
         Row-major matrix taking world points to clip space.
     """
@@ -32,13 +45,35 @@ class Camera:
 
 def fit_camera(positions: np.ndarray, view_dir=(0.3, -0.4, -1.0), fov_degrees: float = 35.0,
                aspect: float = 1.0) -> Camera:
-    """A perspective camera looking along `view_dir` that frames the bounding sphere of `positions` (n, 3)."""
+    """A perspective camera looking along `view_dir` that frames the bounding sphere of `positions`.
+
+    Parameters
+    ----------
+    positions : (n, 3) float
+        World points to frame (n >= 1).
+    view_dir : (3,) float
+        Viewing direction (need not be unit).
+    fov_degrees : float
+        Vertical field of view, in (0, 180).
+    aspect : float
+        Width / height of the image.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    forward = np.asarray(view_dir, dtype=np.float64)
+    if positions.ndim != 2 or positions.shape[1] != 3 or not len(positions) or not np.all(np.isfinite(positions)):
+        raise ValueError(f"render: camera needs finite (n, 3) positions, n >= 1, got shape {positions.shape}")
+    if forward.shape != (3,) or not np.all(np.isfinite(forward)) or not np.linalg.norm(forward) > 0:
+        raise ValueError(f"render: view direction must be three finite numbers, not all zero, got {view_dir}")
+    if not 0.0 < fov_degrees < 180.0 or not aspect > 0.0 or not np.isfinite(aspect):
+        raise ValueError(f"render: need 0 < fov < 180 degrees and aspect > 0, got {fov_degrees}, {aspect}")
     lo, hi = positions.min(axis=0), positions.max(axis=0)
     centre = 0.5 * (lo + hi)
     radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-9)
-    forward = np.asarray(view_dir, dtype=np.float64)
     forward /= np.linalg.norm(forward)
-    distance = radius / np.sin(np.radians(fov_degrees) / 2.0) * 1.05
+    tan_half = np.tan(np.radians(fov_degrees) / 2.0)
+    # The narrower of the two fields of view must hold the sphere.
+    half = min(np.arctan(tan_half), np.arctan(tan_half * aspect))
+    distance = radius / np.sin(half) * 1.05
     eye = centre - forward * distance
     up = np.array([0.0, 1.0, 0.0]) if abs(forward[1]) < 0.9 else np.array([0.0, 0.0, 1.0])
     right = np.cross(forward, up)
@@ -48,7 +83,7 @@ def fit_camera(positions: np.ndarray, view_dir=(0.3, -0.4, -1.0), fov_degrees: f
     view[0, :3], view[1, :3], view[2, :3] = right, true_up, -forward
     view[:3, 3] = -view[:3, :3] @ eye
     near, far = max(distance - radius * 1.5, distance * 1e-3), distance + radius * 1.5
-    f = 1.0 / np.tan(np.radians(fov_degrees) / 2.0)
+    f = 1.0 / tan_half
     proj = np.zeros((4, 4))
     proj[0, 0], proj[1, 1] = f / aspect, f
     proj[2, 2], proj[2, 3] = (far + near) / (near - far), 2 * far * near / (near - far)
@@ -62,8 +97,10 @@ class RenderLight:
     ----------
     point : bool
     vector : (3,) float
-        World direction towards a directional light, or a point light's world position.
+        World direction towards a directional light (normalised by the shaders), or a point
+        light's world position.
     intensity : float
+        Irradiance of a directional light; a point light's intensity (irradiance · mm²).
     mm_per_unit : float
         World units to mm, for a point light's 1/d² falloff.
     """
@@ -73,116 +110,227 @@ class RenderLight:
     intensity: float = 1.0
     mm_per_unit: float = 1.0
 
+    def __post_init__(self):
+        v = np.asarray(self.vector, dtype=np.float64)
+        if v.shape != (3,) or not np.all(np.isfinite(v)) or (not self.point and not np.linalg.norm(v) > 0):
+            raise ValueError(f"render: light vector must be three finite numbers (non-zero direction), got {self.vector}")
+        if not (np.isfinite(self.intensity) and self.intensity >= 0 and np.isfinite(self.mm_per_unit)
+                and self.mm_per_unit > 0):
+            raise ValueError(f"render: light needs intensity >= 0 and mm_per_unit > 0, got {self.intensity}, "
+                             f"{self.mm_per_unit}")
+
 
 class Renderer:
-    """A headless GL context with one float render target of `size` (width, height)."""
+    """A headless GL context with one float render target.
 
-    def __init__(self, size: tuple[int, int] = (512, 512), dialect: str = "glsl330"):
+    Parameters
+    ----------
+    size : (width, height)
+        Image size in pixels, within the GL limits.
+    dialect : str
+        ``"glsl330"`` or ``"essl300"`` (Mesa accepts ES 3.00 shaders in desktop GL).
+    table_width : int
+        Width of the wrapped 2-D layout of the prt tables (`prt_runtime.upload`).
+    """
+
+    def __init__(self, size: tuple[int, int] = (512, 512), dialect: str = "glsl330", table_width: int = TABLE_WIDTH):
         import moderngl
 
+        if dialect not in DIALECTS:
+            raise ValueError(f"render: dialect must be one of {sorted(DIALECTS)}, got {dialect!r}")
         self.ctx = moderngl.create_standalone_context(backend="egl")
-        self.size = size
+        limit = min(self.ctx.info["GL_MAX_TEXTURE_SIZE"], self.ctx.info["GL_MAX_RENDERBUFFER_SIZE"],
+                    *self.ctx.info["GL_MAX_VIEWPORT_DIMS"])
+        width, height = (int(s) for s in size)
+        if not (0 < width <= limit and 0 < height <= limit):
+            self.ctx.release()
+            raise ValueError(f"render: image size {size} outside 1..{limit} (this GL's limit)")
+        self.size = (width, height)
         self.dialect = dialect
+        self.table_width = table_width
         self.fbo = self.ctx.framebuffer(
-            color_attachments=[self.ctx.texture(size, 4, dtype="f4")],
-            depth_attachment=self.ctx.depth_texture(size),
+            color_attachments=[self.ctx.texture(self.size, 4, dtype="f4")],
+            depth_attachment=self.ctx.depth_texture(self.size),
         )
-        self._programs: dict[str, object] = {}
+        self._programs: dict[tuple[str, str], object] = {}
 
-    def _program(self, vertex: str):
-        if vertex not in self._programs:
-            self._programs[vertex] = self.ctx.program(
-                vertex_shader=shader_source(vertex, self.dialect),
-                fragment_shader=shader_source("sss_surface.frag", self.dialect))
-        return self._programs[vertex]
+    def render(self, items, camera: Camera, light: RenderLight, specular: float = 0.0, shininess: float = 64.0,
+               diffuse=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+        """Draw `items` with depth testing.
 
-    def _setup(self, program, model, camera: Camera, light: RenderLight, eta: float, specular: float):
-        values = {
-            "u_model": np.asarray(model, dtype=np.float32).T.tobytes(),  # GLSL matrices are column-major
-            "u_view_projection": np.asarray(camera.view_projection, dtype=np.float32).T.tobytes(),
-        }
-        for name, raw in values.items():
-            program[name].write(raw)
+        Parameters
+        ----------
+        items : list of dict
+            Each with ``positions`` (n, 3), ``normals`` (n, 3), ``faces`` (m, 3) int, ``model``
+            (4, 4) object-to-world, ``eta`` and one of: ``prt`` (`PrtData` over the n vertices,
+            q per unit irradiance), ``q`` (n, 3) scattered radiance per vertex (irradiance
+            included), ``albedo`` (3,) for the plain shader.
+        specular : float
+            Weight of the surface's specular reflection (Fresnel reflectance 1 - F_t times a
+            normalised Blinn-Phong lobe of exponent `shininess`).
+        diffuse : (3,) float
+            Albedo of an extra Lambertian surface term on the scattering draws (default none).
+
+        Returns
+        -------
+        image : (H, W, 3) float32
+            Linear radiance, row 0 at the top.
+        coverage : (H, W) bool
+        """
+        import moderngl
+
+        draws = self._prepare(items, camera, light, specular, shininess, diffuse)
+        try:
+            self.fbo.use()
+            self.ctx.enable(moderngl.DEPTH_TEST)
+            self.fbo.clear(0.0, 0.0, 0.0, 0.0)
+            for draw in draws:
+                draw.run()
+            raw = np.frombuffer(self.fbo.read(components=4, dtype="f4"), dtype=np.float32)
+        finally:
+            for draw in draws:
+                draw.release()
+        rgba = raw.reshape(self.size[1], self.size[0], 4)[::-1]
+        if not np.all(np.isfinite(rgba)):
+            raise ValueError("render: the image has non-finite values (inputs too large for float32?)")
+        return np.ascontiguousarray(rgba[..., :3]), rgba[..., 3] > 0.5
+
+    def frame_ms(self, items, camera: Camera, light: RenderLight, frames: int = 20, specular: float = 0.0) -> float:
+        """Median milliseconds per frame of drawing `items` (see `render`).
+
+        Data is uploaded once; each frame clears, binds each draw's textures and uniforms, draws
+        and waits for the GPU (``ctx.finish``). Two warm-up frames are not counted.
+        """
+        import moderngl
+
+        if frames < 1:
+            raise ValueError(f"render: frames must be >= 1, got {frames}")
+        draws = self._prepare(items, camera, light, specular, 64.0, (0.0, 0.0, 0.0))
+        times = []
+        try:
+            self.fbo.use()
+            self.ctx.enable(moderngl.DEPTH_TEST)
+            for _ in range(frames + 2):
+                t = time.perf_counter()
+                self.fbo.clear(0.0, 0.0, 0.0, 0.0)
+                for draw in draws:
+                    draw.run()
+                self.ctx.finish()
+                times.append(time.perf_counter() - t)
+        finally:
+            for draw in draws:
+                draw.release()
+        return 1000.0 * float(np.median(times[2:]))
+
+    def release(self) -> None:
+        """Free the GL context (the renderer is unusable afterwards)."""
+        self.ctx.release()
+
+    def _program(self, kind: str, prelude: str = ""):
+        if (kind, prelude) not in self._programs:
+            vertex, fragment = PROGRAMS[kind]
+            self._programs[kind, prelude] = self.ctx.program(
+                vertex_shader=shader_source(vertex, self.dialect, prelude),
+                fragment_shader=shader_source(fragment, self.dialect, prelude))
+        return self._programs[kind, prelude]
+
+    def _prepare(self, items, camera, light, specular, shininess, diffuse) -> list[_Draw]:
+        if not len(items):
+            raise ValueError("render: nothing to draw (no items)")
+        draws = []
+        try:
+            for i, item in enumerate(items):
+                kind = _check_item(i, item)
+                draws.append(self._draw(kind, item, camera, light, specular, shininess, diffuse))
+        except Exception:
+            for draw in draws:
+                draw.release()
+            raise
+        return draws
+
+    def _draw(self, kind, item, camera, light, specular, shininess, diffuse) -> _Draw:
+        # one prt variant per SH order (see prt_decode.glsl)
+        program = self._program(kind, f"#define PRT_SH_ORDER {item['prt'].sh_order}\n" if kind == "prt" else "")
+        textures, extra = [], []
+        if kind == "prt":
+            ref, w = per_vertex_arrays(item["prt"])
+            extra = [(ref, "2u2", "in_prt_ref"), (w, "2i2", "in_prt_w")]
+            # `upload` also sets this item's prt uniforms, which `_Draw` snapshots below.
+            textures = upload(self.ctx, program, item["prt"], width=self.table_width)
+        elif kind == "q":
+            extra = [(np.asarray(item["q"], np.float32), "3f", "in_q")]
+        linear = np.asarray(item["model"], dtype=np.float64)[:3, :3]
+        to_object = np.linalg.inv(linear)
+        matrices = {"u_model": item["model"], "u_view_projection": camera.view_projection,
+                    "u_normal_matrix": to_object.T, "u_world_to_object": to_object}
+        for name, matrix in matrices.items():
+            if name in program:  # GLSL matrices are column-major
+                program[name].write(np.asarray(matrix, dtype=np.float32).T.tobytes())
+        albedo = item.get("albedo", diffuse)
         settings = {"u_point_light": int(light.point), "u_light": tuple(map(float, light.vector)),
                     "u_intensity": float(light.intensity), "u_mm_per_unit": float(light.mm_per_unit),
-                    "u_eye": tuple(map(float, camera.eye)), "u_eta": float(eta), "u_specular": float(specular),
-                    "u_shininess": 64.0}
+                    "u_eye": tuple(map(float, camera.eye)), "u_eta": float(item["eta"]),
+                    "u_specular": float(specular), "u_shininess": float(shininess),
+                    "u_diffuse": tuple(map(float, albedo))}
         for name, value in settings.items():
             if name in program:
                 program[name].value = value
+        arrays = [(item["positions"], "3f", "in_position"), (item["normals"], "3f", "in_normal")] + extra
+        buffers = [self.ctx.buffer(np.ascontiguousarray(a, np.float32 if f.endswith("f") else None).tobytes())
+                   for a, f, _ in arrays]
+        buffers.append(self.ctx.buffer(np.ascontiguousarray(item["faces"], np.uint32).tobytes()))
+        content = [(b, f, name) for b, (_, f, name) in zip(buffers, arrays) if name in program]
+        vao = self.ctx.vertex_array(program, content, index_buffer=buffers[-1], index_element_size=4)
+        return _Draw(program, vao, textures, buffers)
 
-    def _vao(self, program, positions, normals, faces, extra):
-        buffers = [(self.ctx.buffer(np.ascontiguousarray(positions, np.float32).tobytes()), "3f", "in_position"),
-                   (self.ctx.buffer(np.ascontiguousarray(normals, np.float32).tobytes()), "3f", "in_normal")]
-        buffers += [(self.ctx.buffer(np.ascontiguousarray(a).tobytes()), fmt, name) for a, fmt, name in extra]
-        index = self.ctx.buffer(np.ascontiguousarray(faces, np.uint32).tobytes())
-        return self.ctx.vertex_array(program, [b for b in buffers if b[2] in program], index_buffer=index,
-                                     index_element_size=4)
 
-    def _draws(self, items):
-        """Programs and vertex arrays for `items`: dicts with ``positions``, ``normals``, ``faces``,
-        ``model`` (4, 4), ``eta`` and either ``q`` (n, 3) or ``prt`` (PrtData over the vertices)."""
-        draws = []
-        for item in items:
-            if "prt" in item:
-                prt: PrtData = item["prt"]
-                program = self._program("prt.vert")
-                ref, w = per_vertex_arrays(prt)
-                extra = [(ref, "2u2", "in_prt_ref"), (w, "2i2", "in_prt_w")]
-            else:
-                program = self._program("vertex_q.vert")
-                extra = [(np.asarray(item["q"], np.float32), "3f", "in_q")]
-            vao = self._vao(program, item["positions"], item["normals"], item["faces"], extra)
-            draws.append((program, vao, item))
-        return draws
+class _Draw:
+    """One item ready to draw: its vertex array, textures and the uniform values it was set up with
+    (several items may share a program, so each draw restores its own)."""
 
-    def render(self, items, camera: Camera, light: RenderLight, specular: float = 0.0):
-        """Render `items` (see `_draws`). Returns image (H, W, 3) float32 and coverage (H, W) bool."""
+    def __init__(self, program, vao, textures, buffers):
         import moderngl
 
-        draws = self._draws(items)
-        self.fbo.use()
-        self.fbo.clear(0.0, 0.0, 0.0, 0.0)
-        self.ctx.enable(moderngl.DEPTH_TEST)
-        for program, vao, item in draws:
-            textures = upload(self.ctx, program, item["prt"]) if "prt" in item else []
-            self._setup(program, item["model"], camera, light, item["eta"], specular)
-            vao.render(moderngl.TRIANGLES)
-            _release(textures)
-        _release([vao for _, vao, _ in draws])
-        raw = np.frombuffer(self.fbo.read(components=4, dtype="f4"), dtype=np.float32)
-        rgba = raw.reshape(self.size[1], self.size[0], 4)[::-1]
-        return np.ascontiguousarray(rgba[..., :3]), rgba[..., 3] > 0.5
+        self.program, self.vao, self.textures, self.buffers = program, vao, textures, buffers
+        self.uniforms = {name: program[name].read() for name in program
+                         if isinstance(program[name], moderngl.Uniform)}
 
-    def frame_ms(self, items, camera: Camera, light: RenderLight, frames: int = 20) -> float:
-        """Median milliseconds per frame (textures and buffers already uploaded, ctx.finish each frame).
-
-        Each draw binds its own textures; scalar uniforms of items sharing a program are those of
-        the last item set up, which changes no cost (the images come from `render`)."""
+    def run(self) -> None:
         import moderngl
 
-        draws = self._draws(items)
-        kept = [upload(self.ctx, p, item["prt"]) if "prt" in item else [] for p, _, item in draws]
-        self.fbo.use()
-        self.ctx.enable(moderngl.DEPTH_TEST)
-        for p, _, item in draws:
-            self._setup(p, item["model"], camera, light, item["eta"], 0.0)
-        times = []
-        for _ in range(frames + 2):
-            t = time.perf_counter()
-            self.fbo.clear(0.0, 0.0, 0.0, 0.0)
-            for (program, vao, _), textures in zip(draws, kept):
-                for unit, texture in enumerate(textures):  # `upload` numbers the units from 0
-                    texture.use(unit)
-                vao.render(moderngl.TRIANGLES)
-            self.ctx.finish()
-            times.append(time.perf_counter() - t)
-        for textures in kept:
-            _release(textures)
-        _release([vao for _, vao, _ in draws])
-        return 1000.0 * float(np.median(times[2:]))
+        for name, raw in self.uniforms.items():
+            self.program[name].write(raw)
+        for unit, texture in enumerate(self.textures):  # `upload` numbers the units from 0
+            texture.use(unit)
+        self.vao.render(moderngl.TRIANGLES)
+
+    def release(self) -> None:
+        for o in [self.vao, *self.textures, *self.buffers]:
+            o.release()
 
 
-def _release(objects) -> None:
-    for o in objects:
-        o.release()
+def _check_item(i: int, item: dict) -> str:
+    """The kind of draw of `item` (a key of `PROGRAMS`), after checking its arrays."""
+    kinds = [k for k in PROGRAMS if k in item]
+    if len(kinds) != 1:
+        raise ValueError(f"render: item {i} needs exactly one of {list(PROGRAMS)}, got {sorted(item)}")
+    positions = np.asarray(item["positions"])
+    n = len(positions)
+    faces = np.asarray(item["faces"])
+    shapes = {"positions": (n, 3), "normals": (n, 3), "model": (4, 4)}
+    shapes.update({"q": (n, 3)} if kinds[0] == "q" else {"albedo": (3,)} if kinds[0] == "albedo" else {})
+    for name, shape in shapes.items():
+        a = np.asarray(item[name])
+        if a.shape != shape or not np.all(np.isfinite(a)):
+            raise ValueError(f"render: item {i}: {name} must be finite with shape {shape}, got {a.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3 or not len(faces) or not np.issubdtype(faces.dtype, np.integer) or (
+            faces.min() < 0 or faces.max() >= n):
+        raise ValueError(f"render: item {i}: faces must be (m, 3) integer indices into {n} vertices, m >= 1")
+    if not np.isfinite(item["eta"]) or not item["eta"] > 0:
+        raise ValueError(f"render: item {i}: eta must be positive, got {item['eta']}")
+    if abs(np.linalg.det(np.asarray(item["model"], dtype=np.float64)[:3, :3])) < 1e-30:
+        raise ValueError(f"render: item {i}: model matrix is singular")
+    if kinds[0] == "prt" and (not isinstance(item["prt"], PrtData) or item["prt"].vertex_count != n
+                              or not 0 <= item["prt"].sh_order <= SH_MAX_ORDER):
+        raise ValueError(f"render: item {i}: prt must be PrtData over the item's {n} vertices, SH order <= {SH_MAX_ORDER}")
+    return kinds[0]

@@ -27,6 +27,7 @@ from .materials import Material
 from .prt_compress import WEIGHTS, PrtCompressOptions, bytes_per_vertex, compress_prt, evaluate
 from .prt_precompute import irradiance_signal
 from .scatter_operator import SCATTER_DEFAULTS, scatter_operator
+from .verify import PLAIN_ALBEDO
 from .visibility import direction_visibility
 
 KS = (25, 50, 100, 200, 400)
@@ -122,7 +123,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
 
     light = RenderLight(False, tuple(test[0]), 1.0)
     frame_sss = renderer.frame_ms([{**base, "prt": default_prt}], camera, light)
-    frame_plain = renderer.frame_ms([{**base, "q": exact[:, :, 0].T}], camera, light)
+    frame_plain = renderer.frame_ms([{**base, "albedo": PLAIN_ALBEDO}], camera, light)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = out_dir / f"{path.stem}.tradeoff.prt"

@@ -25,6 +25,8 @@ from .visibility import direction_visibility
 
 TECHNIQUES = ("prt",)
 DEFAULT_LIGHT = (0.4, 0.8, 0.45)
+#: Colour of the plain shader that frame times are compared with (its cost does not depend on it).
+PLAIN_ALBEDO = (0.8, 0.8, 0.8)
 
 
 def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT, size: int = 512,
@@ -121,7 +123,9 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         "bytes_per_vertex": prt_reports[0]["bytesPerVertex"]["total"] if prt_reports else None,
         "bake_seconds": report.get("seconds"),
         "frame_ms_sss": renderer.frame_ms(sss_items, camera, light, frames),
-        "frame_ms_plain": renderer.frame_ms(lambert_items, camera, light, frames),
+        # plain: the standard Lambert + specular shader, no SSS data
+        "frame_ms_plain": renderer.frame_ms([{k: v for k, v in it.items() if k != "q"} | {"albedo": PLAIN_ALBEDO}
+                                             for it in lambert_items], camera, light, frames),
         "reference_seconds": reference_seconds,
         "exposure": exposure,
         "image_size": [size, size],

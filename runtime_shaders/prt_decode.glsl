@@ -1,11 +1,19 @@
 // Decoding of the prt data (Hao & Varshney 2004) exactly as pipeline/prt_data.py states it:
 //   q_c(w) = sum_k w_k T_c[r_k](w) + sum_i dq_c,i y_i(w)
-// Tables are 2-D textures holding a linear index i at texel (i % width, i / width).
+// Tables are 2-D textures holding a linear index i at texel (i % width, i / width)
+// (pipeline/prt_runtime.py `upload` makes them).
 #include "sh_basis.glsl"
 
 uniform int u_prt_k;                 // directions K
 uniform int u_prt_refs;              // reference points R (0: none)
-uniform int u_prt_order;             // SH order of dq (0: none)
+// SH order of dq (0: none). Defining PRT_SH_ORDER compiles a variant for one order: constant
+// loop bounds let the compiler unroll the SH terms and keep them in registers (~25 % faster here).
+#ifdef PRT_SH_ORDER
+const int prt_order = PRT_SH_ORDER;
+#else
+uniform int u_prt_order;
+#define prt_order u_prt_order
+#endif
 uniform float u_prt_weight_scale;
 uniform int u_prt_lookup_size;
 uniform float u_prt_dq_scale[3 * SH_MAX_ORDER * SH_MAX_ORDER];  // [c * C + i]
@@ -21,14 +29,24 @@ uniform isampler2D u_prt_dq;          // R32I: (vertex * 3C + c * C + i) -> code
 
 const int PRT_WALK_STEPS = 6;         // pipeline/directions.py WALK_STEPS
 
-ivec2 prt_texel(int index, ivec2 size) { return ivec2(index % size.x, index / size.x); }
+// (index % width, index / width) without integer division, which GPUs and CPU rasterisers
+// emulate slowly: the float quotient is off by at most one while rows stay below 2^20 (texture
+// limits keep them below 2^15), and one correction step fixes it.
+ivec2 prt_texel(int index, int width) {
+    int row = int(float(index) / float(width));
+    int col = index - row * width;
+    row += col >= width ? 1 : (col < 0 ? -1 : 0);
+    col += col >= width ? -width : (col < 0 ? width : 0);
+    return ivec2(col, row);
+}
 
-ivec4 prt_fetch_i(isampler2D s, int index) { return texelFetch(s, prt_texel(index, textureSize(s, 0)), 0); }
-uvec4 prt_fetch_u(usampler2D s, int index) { return texelFetch(s, prt_texel(index, textureSize(s, 0)), 0); }
-vec4 prt_fetch_f(sampler2D s, int index) { return texelFetch(s, prt_texel(index, textureSize(s, 0)), 0); }
+ivec4 prt_fetch_i(isampler2D s, int index) { return texelFetch(s, prt_texel(index, textureSize(s, 0).x), 0); }
+uvec4 prt_fetch_u(usampler2D s, int index) { return texelFetch(s, prt_texel(index, textureSize(s, 0).x), 0); }
+vec4 prt_fetch_f(sampler2D s, int index) { return texelFetch(s, prt_texel(index, textureSize(s, 0).x), 0); }
 
+// Octahedral map of pipeline/prt_data.py; a zero w lands on the centre texel instead of NaN.
 ivec2 prt_octahedral_texel(vec3 w, int size) {
-    vec2 p = w.xy / (abs(w.x) + abs(w.y) + abs(w.z));
+    vec2 p = w.xy / max(abs(w.x) + abs(w.y) + abs(w.z), 1e-30);
     if (w.z < 0.0) {
         vec2 s = vec2(p.x >= 0.0 ? 1.0 : -1.0, p.y >= 0.0 ? 1.0 : -1.0);
         p = (1.0 - abs(p.yx)) * s;
@@ -37,27 +55,35 @@ ivec2 prt_octahedral_texel(vec3 w, int size) {
 }
 
 vec3 prt_barycentric(int t, vec3 w) {
-    return vec3(dot(prt_fetch_f(u_prt_dir_inv, 3 * t).xyz, w),
-                dot(prt_fetch_f(u_prt_dir_inv, 3 * t + 1).xyz, w),
-                dot(prt_fetch_f(u_prt_dir_inv, 3 * t + 2).xyz, w));
+    // the three rows of triangle t's inverse are consecutive texels
+    ivec2 width = ivec2(textureSize(u_prt_dir_inv, 0).x, 0);
+    ivec2 texel = prt_texel(3 * t, width.x);
+    vec3 b;
+    for (int row = 0; row < 3; ++row) {
+        b[row] = dot(texelFetch(u_prt_dir_inv, texel, 0).xyz, w);
+        texel = texel.x + 1 == width.x ? ivec2(0, texel.y + 1) : texel + ivec2(1, 0);
+    }
+    return b;
 }
 
-// The hull triangle containing w and its clamped, normalised barycentrics.
+// The hull triangle containing w and its clamped, normalised barycentrics (directions.lookup_weights).
 void prt_direction_weights(vec3 w, out ivec3 dirs, out vec3 beta) {
     int t = texelFetch(u_prt_dir_lookup, prt_octahedral_texel(w, u_prt_lookup_size), 0).x;
+    vec3 b = prt_barycentric(t, w);
     for (int step = 0; step < PRT_WALK_STEPS; ++step) {
-        vec3 b = prt_barycentric(t, w);
         int worst = (b.x <= b.y && b.x <= b.z) ? 0 : (b.y <= b.z ? 1 : 2);
         if (b[worst] >= 0.0) break;
         t = prt_fetch_i(u_prt_dir_neigh, t)[worst];
+        b = prt_barycentric(t, w);
     }
-    beta = max(prt_barycentric(t, w), vec3(0.0));
+    beta = max(b, vec3(0.0));
     float total = beta.x + beta.y + beta.z;
     beta = total > 0.0 ? beta / total : vec3(1.0 / 3.0);
     dirs = prt_fetch_i(u_prt_dir_tris, t).xyz;
 }
 
 // Scattered radiance per unit irradiance (RGB) of vertex `vertex` lit from unit direction w.
+// ref: vertex_triangle as (low, high) 16-bit halves; weight_codes: w0, w1 as snorm16 codes.
 vec3 prt_decode(int vertex, uvec2 ref, ivec2 weight_codes, vec3 w) {
     vec3 q = vec3(0.0);
     if (u_prt_refs > 0) {
@@ -70,23 +96,28 @@ vec3 prt_decode(int vertex, uvec2 ref, ivec2 weight_codes, vec3 w) {
         for (int k = 0; k < 3; ++k) {
             vec3 table = vec3(0.0);
             for (int a = 0; a < 3; ++a) {
-                uvec3 code = prt_fetch_u(u_prt_ref_codes, refs[k] * u_prt_k + dirs[a]).rgb;
-                table += beta[a] * vec3(prt_fetch_f(u_prt_lut, int(code.r)).r,
-                                        prt_fetch_f(u_prt_lut, int(code.g)).g,
-                                        prt_fetch_f(u_prt_lut, int(code.b)).b);
+                ivec3 code = ivec3(prt_fetch_u(u_prt_ref_codes, refs[k] * u_prt_k + dirs[a]).rgb);
+                // the LUT is one row of 256 texels
+                table += beta[a] * vec3(texelFetch(u_prt_lut, ivec2(code.r, 0), 0).r,
+                                        texelFetch(u_prt_lut, ivec2(code.g, 0), 0).g,
+                                        texelFetch(u_prt_lut, ivec2(code.b, 0), 0).b);
             }
             q += weights[k] * table;
         }
     }
-    if (u_prt_order > 0) {
+    if (prt_order > 0) {
         float y[SH_MAX_ORDER * SH_MAX_ORDER];
-        sh_basis(w, u_prt_order, y);
-        int count = u_prt_order * u_prt_order;
+        sh_basis(w, prt_order, y);
+        int count = prt_order * prt_order;
+        // a vertex's 3C codes are consecutive: walk the texels instead of mapping each index
+        int width = textureSize(u_prt_dq, 0).x;
+        ivec2 texel = prt_texel(vertex * 3 * count, width);
         for (int c = 0; c < 3; ++c) {
             float sum = 0.0;
             for (int i = 0; i < count; ++i) {
-                float code = float(prt_fetch_i(u_prt_dq, (vertex * 3 + c) * count + i).x);
+                float code = float(texelFetch(u_prt_dq, texel, 0).x);
                 sum += code / 127.0 * u_prt_dq_scale[c * count + i] * y[i];
+                texel = texel.x + 1 == width ? ivec2(0, texel.y + 1) : texel + ivec2(1, 0);
             }
             q[c] += sum;
         }

@@ -5,18 +5,21 @@
 in vec3 v_q;            // scattered radiance reaching the surface from inside (per unit F_t out)
 in vec3 v_normal;
 in vec3 v_position;
-in vec3 v_light;        // unit direction towards the light, world space
+in vec3 v_light;        // direction towards the light, world space
 in float v_irradiance;  // light irradiance at the vertex
 uniform vec3 u_eye;
 uniform float u_eta;
 uniform float u_specular;   // weight of the surface reflection (0: scattering only)
 uniform float u_shininess;
+uniform vec3 u_diffuse;     // albedo of an extra Lambertian surface term (0: none)
 out vec4 f_color;
 
 void main() {
-    vec3 n = normalize(v_normal);
-    vec3 v = normalize(u_eye - v_position);
+    vec3 n = sss_normalize(v_normal);
+    vec3 v = sss_normalize(u_eye - v_position);
+    vec3 l = sss_normalize(v_light);
     vec3 radiance = v_q * fresnel_transmittance(u_eta, dot(n, v));
-    radiance += u_specular * v_irradiance * surface_specular(n, v, normalize(v_light), u_eta, u_shininess);
+    radiance += v_irradiance * (u_specular * surface_specular(n, v, l, u_eta, u_shininess) +
+                                u_diffuse * surface_diffuse(n, l));
     f_color = vec4(radiance, 1.0);
 }
