@@ -64,7 +64,7 @@ def test_reference_equals_precompute_at_a_set_direction():
     s = two_spheres()
     material = preset("ketchup")
     directions = fibonacci_sphere(12)
-    options = PrtPrecomputeOptions(scatter=ScatterOptions(hierarchy=False, energy_dropped=1e-3))
+    options = PrtPrecomputeOptions(scatter=ScatterOptions(hierarchy=False, energy_dropped=1e-3, float32=False))
     res = precompute_prt(s, 10.0, material, directions, options)
     for j in (0, 5):
         ref = reference_scattering(s, 10.0, material, Light("directional", tuple(directions[j])), energy_dropped=1e-3)

@@ -11,7 +11,7 @@ from sssbake.pipeline.materials import preset, preset_names
 from sssbake.pipeline.scatter_operator import ScatterOptions, scatter_operator
 from fixtures import plane
 
-EXACT = ScatterOptions(hierarchy=False)
+EXACT = ScatterOptions(hierarchy=False, float32=False)
 
 
 def sphere(radius_mm: float, subdivisions: int = 4):
@@ -47,7 +47,7 @@ def test_hierarchy_agrees_with_exact_pairs(separation, rms, peak):
     signal = lit(normals)
     exact = scatter_operator(x, area, p, EXACT).apply(signal)
     op = scatter_operator(x, area, p, ScatterOptions(separation=separation))
-    assert op.stats["levels"] >= 2 and len(op.far) >= 1
+    assert op.stats["levels"] >= 2 and len(op.levels) >= 1
     got = op.apply(signal)
     err = np.abs(got - exact)
     assert np.sqrt(np.mean(err**2)) <= rms * np.sqrt(np.mean(exact**2))
@@ -103,3 +103,34 @@ def test_bad_input_is_refused():
         scatter_operator(np.full((3, 3), np.nan), np.ones(3), p)
     with pytest.raises(ValueError, match="energy_dropped"):
         scatter_operator(np.zeros((3, 3)), np.ones(3), p, ScatterOptions(energy_dropped=0.0))
+
+
+def test_float32_threads_and_targets_change_nothing_but_rounding():
+    x, _, area, normals = sphere(25.0)
+    p = DipoleParams.from_material(preset("marble"))
+    signal = lit(normals, k=40)  # more signals than one block: blocks run on both threads
+    ref = scatter_operator(x, area, p, ScatterOptions(float32=False, threads=1)).apply(signal)
+    single = scatter_operator(x, area, p, ScatterOptions(float32=True, threads=2, block=7)).apply(signal)
+    # float32 entries round at ~1e-7 relative; the sums stay within 1e-5 of the largest q.
+    assert np.abs(single - ref).max() <= 1e-5 * ref.max()
+    assert np.abs(single - ref).max() > 0  # it really ran in float32
+    targets = np.array([17, 3, 400, 3])  # any order, repeats allowed
+    sub = scatter_operator(x, area, p, ScatterOptions(float32=False), targets=targets).apply(signal)
+    np.testing.assert_allclose(sub, ref[:, targets], rtol=1e-12, atol=1e-15 * ref.max())
+
+
+def test_far_kernel_table_interpolates_to_its_bound():
+    # The table's documented error (< 1e-5 relative) at points between its nodes.
+    from sssbake.pipeline.scatter_operator import _KernelTable, _profile
+    for name in ("marble", "ketchup", "skin1"):
+        p = DipoleParams.from_material(preset(name))
+        radius = radius_for_energy(1e-2, p)
+        table = _KernelTable.build(p, 0.3, float(radius.max()))
+        at = np.linspace(0.0, table.nodes - 2, 5001)[1:-1] + 0.37
+        d = np.exp(table.log_lo + at * table.step)
+        node, w = at.astype(int), at - at.astype(int)
+        for c in range(3):
+            inside = d <= radius[c]  # entries beyond a channel's radius are never read
+            exact = _profile(d[inside], p, c)[0]
+            got = table.value[c, 0, node[inside]] + w[inside] * table.slope[c, 0, node[inside]]
+            assert np.abs(got / exact - 1).max() < 1e-5, name
