@@ -83,6 +83,28 @@ def diffuse_reflectance_profile(r, p: DipoleParams) -> np.ndarray:
     return out * (p.alpha_prime / (4.0 * np.pi))
 
 
+def profile_derivatives(r, p: DipoleParams, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rd, dRd/dr and d²Rd/dr² of channel c at r (mm), (...,) float64 each.
+
+    With g(D) = (1 + σD) e^(-σD) / D³ and D² = r² + z²: g' = -e (σ²D² + 3σD + 3) / D⁴,
+    g'' = e (σ³D³ + 5σ²D² + 12σD + 12) / D⁵, and dD/dr = r/D, d²D/dr² = z²/D³.
+    """
+    r = np.asarray(r, dtype=np.float64)
+    s = p.sigma_tr[c]
+    out = [np.zeros_like(r) for _ in range(3)]
+    for z in (p.z_r[c], p.z_v[c]):
+        d2 = r * r + z * z
+        d = np.sqrt(d2)
+        e = np.exp(-s * d)
+        g1 = -e * (s * s * d2 + 3.0 * s * d + 3.0) / (d2 * d2)
+        g2 = e * (s**3 * d2 * d + 5.0 * s * s * d2 + 12.0 * s * d + 12.0) / (d2 * d2 * d)
+        out[0] += z * (1.0 + s * d) * e / (d2 * d)
+        out[1] += z * g1 * r / d
+        out[2] += z * (g2 * r * r / d2 + g1 * z * z / (d2 * d))
+    k = p.alpha_prime[c] / (4.0 * np.pi)
+    return k * out[0], k * out[1], k * out[2]
+
+
 def _source_disc_term(a2, z, sigma_tr):
     """e^(-σ z) - (z/d) e^(-σ d) with d = sqrt(a² + z²), free of cancellation for small a."""
     d = np.sqrt(a2 + z * z)

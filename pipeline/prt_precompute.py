@@ -97,8 +97,8 @@ def precompute_prt(surface: Surface, mm_per_unit: float, material: Material, dir
     params = DipoleParams.from_material(material)
     t = time.perf_counter()
     if operator is None:
-        operator = scatter_operator(surface.positions * mm_per_unit, surface.vertex_areas * mm_per_unit**2,
-                                    params, options.scatter)
+        operator = scatter_operator(surface.positions * mm_per_unit, surface.faces, surface.normals, params,
+                                    options.scatter)
     seconds["operator"] = time.perf_counter() - t
     t = time.perf_counter()
     q = np.empty((3, len(surface.positions), len(directions)))

@@ -2,10 +2,12 @@
 
 For signals E (n, K) at the surface vertices (irradiance of K lights, say), per colour channel c::
 
-    q_c[o, :] = Σ_i Rd_c(|x_i - x_o|) ΔA_i E[i, :]
+    q_c[o, :] = Σ_i ḡ_c(|x_i - x_o|, a_i) ΔA_i E[i, :]
 
-with the vertex's own area integrated exactly (`dipole.disc_integral` over a disc of area ΔA_o)
-and sources beyond the energy radius R_c dropped (at most `energy_dropped` of R_d on a plane).
+with ḡ the profile Rd averaged over the source's area, a disc of radius a_i = sqrt(ΔA_i/π)
+(`disc_average`: point samples under-resolve Rd on meshes coarser than z_r), the vertex's own
+disc integrated exactly (`dipole.disc_integral`), sources beyond the energy radius R_c dropped (at
+most `energy_dropped` of R_d on a plane), and no source sending out more than R_d in all.
 
 Not O(N²): the energy radius of marble at realistic scale covers thousands of vertices. Vertices
 are bucketed in nested voxel grids (cell size h_0·2^l); two cells of one level are *near* when
@@ -16,8 +18,8 @@ area-weighted centroid ȳ at distance D >= separation·h_l:
 
     (Rd(D) + ½ tr(H Σ)) Σ_i ΔA_i E_i
 
-with Σ the cluster's area covariance and H the kernel's Hessian at D, so the cluster's extent
-enters to second order. Pairs still near at level 0 are summed vertex by vertex. Each (target,
+with Σ the cluster's area covariance (its vertices' own discs included) and H the kernel's
+Hessian at D, so the cluster's extent enters to second order. Pairs still near at level 0 are summed vertex by vertex. Each (target,
 source) vertex pair is thereby counted exactly once.
 
 Measured on the 50k-vertex Stanford dragon at 10 mm/unit, marble, 8 lit and shadowed directions
@@ -41,7 +43,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from .dipole import DipoleParams, disc_integral, radius_for_energy
+from .clean import vertex_areas
+from .dipole import DipoleParams, disc_integral, profile_derivatives, radius_for_energy
+from .disc_average import DiscMean
 
 #: Pair entries computed at once per thread while building (bounds the build's temporaries).
 ENTRIES_PER_CHUNK = 1_000_000
@@ -97,10 +101,8 @@ class ScatterOperator:
         Caller's index of each internal vertex.
     area : (n,) float64
         ΔA per internal vertex, mm².
-    rows : (T,) int64
-        Output row of each internal target row (targets in internal order).
-    near : csr_matrix (3T, n)
-        Exact pairs; channel c in rows c·T .. c·T + T - 1: Rd_c ΔA_i, the disc integral for the
+    near : csr_matrix (3n, n)
+        Exact pairs in internal order; channel c in rows c·n .. c·n + n - 1: Rd_c ΔA_i, the disc integral for the
         target's own area.
     levels : list of FarLevel
         The cluster terms of each level that has any.
@@ -117,7 +119,6 @@ class ScatterOperator:
 
     order: np.ndarray
     area: np.ndarray
-    rows: np.ndarray
     near: sp.csr_matrix
     levels: list = field(default_factory=list)
     radius_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -134,7 +135,7 @@ class ScatterOperator:
     @property
     def nbytes(self) -> int:
         """Bytes of the stored matrices and index arrays."""
-        total = self.order.nbytes + self.area.nbytes + self.rows.nbytes + _csr_bytes(self.near)
+        total = self.order.nbytes + self.area.nbytes + _csr_bytes(self.near)
         return total + sum(_csr_bytes(f.matrix) + f.starts.nbytes for f in self.levels)
 
     def apply(self, signal: np.ndarray) -> np.ndarray:
@@ -147,18 +148,17 @@ class ScatterOperator:
 
         Returns
         -------
-        (3, T, K) float64
-            q per channel, target (all n vertices unless built for a subset) and signal; >= 0
-            where the signal is >= 0.
+        (3, n, K) float64
+            q per channel, vertex (caller's order) and signal; >= 0 where the signal is >= 0.
         """
         signal = np.asarray(signal, dtype=np.float64)
-        n, t = len(self.order), len(self.rows)
+        n = len(self.order)
         if signal.ndim != 2 or signal.shape[0] != n:
             raise ValueError(f"scatter apply: signal must be ({n}, K), got {signal.shape}")
         if not np.all(np.isfinite(signal)):
             raise ValueError("scatter apply: signal contains NaN or Inf")
         k = signal.shape[1]
-        out = np.empty((3, t, k))
+        out = np.empty((3, n, k))
         dtype = self.near.dtype
 
         def run(b: slice) -> None:
@@ -167,7 +167,7 @@ class ScatterOperator:
             weighted = e * self.area[:, None]
             for f in self.levels:
                 q += f.matrix @ np.add.reduceat(weighted, f.starts, axis=0).astype(dtype, copy=False)
-            out[:, self.rows, b] = q.reshape(3, t, -1)
+            out[:, self.order, b] = q.reshape(3, n, -1)
 
         blocks = [slice(s, min(k, s + self.block)) for s in range(0, k, self.block)]
         _run_all(run, blocks, self.threads)
@@ -183,7 +183,7 @@ class FarLevel:
 
     Attributes
     ----------
-    matrix : csr_matrix (3T, m)
+    matrix : csr_matrix (3n, m)
         Per channel block of rows, each target's kernel for the clusters' Σ ΔA E.
     starts : (m,) int64
         First internal vertex of each cluster (clusters are contiguous runs).
@@ -193,21 +193,20 @@ class FarLevel:
     starts: np.ndarray
 
 
-def scatter_operator(positions_mm: np.ndarray, areas_mm2: np.ndarray, params: DipoleParams,
-                     options: ScatterOptions = SCATTER_DEFAULTS, targets: np.ndarray | None = None) -> ScatterOperator:
+def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: DipoleParams,
+                     options: ScatterOptions = SCATTER_DEFAULTS) -> ScatterOperator:
     """Build the gather for a surface.
 
     Parameters
     ----------
     positions_mm : (n, 3) float64
         Vertex positions in millimetres.
-    areas_mm2 : (n,) float64
-        Area of each vertex (a third of its triangles), mm², >= 0.
+    faces : (m, 3) int
+        Triangles; each vertex owns a third of its triangles (its area ΔA, mm²).
+    normals : (n, 3) float64
+        Unit vertex normals: each source is a disc in its tangent plane.
     params : DipoleParams
     options : ScatterOptions
-    targets : (T,) int, optional
-        Gather only at these vertices (all sources still count): `apply` then returns (3, T, K)
-        in this order. Default: every vertex.
 
     Returns
     -------
@@ -215,13 +214,19 @@ def scatter_operator(positions_mm: np.ndarray, areas_mm2: np.ndarray, params: Di
     """
     t0 = time.perf_counter()
     x = np.asarray(positions_mm, dtype=np.float64)
-    area = np.asarray(areas_mm2, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 3 or len(x) == 0 or area.shape != (len(x),):
-        raise ValueError(f"scatter: need positions (n, 3) and areas (n,) with n > 0, got {x.shape} and {area.shape}")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(area))):
-        raise ValueError("scatter: positions and areas must be finite")
-    if np.any(area < 0):
-        raise ValueError("scatter: vertex areas must be >= 0")
+    tri = np.asarray(faces)
+    nrm = np.asarray(normals, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3 or len(x) == 0 or nrm.shape != x.shape or tri.ndim != 2 or tri.shape[1] != 3:
+        raise ValueError(f"scatter: need positions (n, 3), faces (m, 3) and normals (n, 3) with n > 0, got {x.shape}, "
+                         f"{tri.shape} and {nrm.shape}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(nrm))):
+        raise ValueError("scatter: positions and normals must be finite")
+    if len(tri) and (tri.dtype.kind not in "iu" or tri.min() < 0 or tri.max() >= len(x)):
+        raise ValueError(f"scatter: faces must index the {len(x)} vertices")
+    area = vertex_areas(x, tri)
+    # The vertex's own area as a disc, like its neighbours': discs of equal area overlap near the
+    # receiver where cells would tile, and on regular meshes the overlaps balance (plane tests).
+    own = disc_integral(np.sqrt(area / np.pi), params)
     if not 0.0 < options.energy_dropped < 1.0:
         raise ValueError(f"scatter: energy_dropped must be in (0, 1), got {options.energy_dropped}")
     if options.separation < 1 or not options.vertices_per_cell > 0:
@@ -229,9 +234,6 @@ def scatter_operator(positions_mm: np.ndarray, areas_mm2: np.ndarray, params: Di
     if options.threads < 1 or options.block < 1:
         raise ValueError("scatter: threads and block must be >= 1")
     n = len(x)
-    tgt = np.arange(n) if targets is None else np.asarray(targets)
-    if tgt.ndim != 1 or len(tgt) == 0 or tgt.dtype.kind not in "iu" or tgt.min() < 0 or tgt.max() >= n:
-        raise ValueError(f"scatter: targets must be a non-empty 1-D array of vertex indices below {n}")
 
     radius = radius_for_energy(options.energy_dropped, params)
     total = 0.5 * params.alpha_prime * (np.exp(-params.sigma_tr * params.z_r) + np.exp(-params.sigma_tr * params.z_v))
@@ -239,20 +241,22 @@ def scatter_operator(positions_mm: np.ndarray, areas_mm2: np.ndarray, params: Di
     dropped = np.clip(np.where(total > 0, 1.0 - kept / np.where(total > 0, total, 1.0), 0.0), 0.0, 1.0)
     r_max = float(radius.max())
     dtype = np.float32 if options.float32 else np.float64
-    build = _Builder(params, radius, dtype, options.threads)  # exact pairs only
+    disc = DiscMean.build(params, np.sqrt(area / np.pi))
+    build = _Builder(params, radius, dtype, options.threads, disc)  # exact pairs only
 
     if not options.hierarchy:
-        lists = cKDTree(x).query_ball_point(x[tgt], r_max)
+        lists = cKDTree(x).query_ball_point(x, r_max)
         count = np.fromiter((len(v) for v in lists), dtype=np.int64, count=len(lists))
 
         def source_of(j0, j1):
             which = np.repeat(np.arange(j0, j1), count[j0:j1])
             return which, np.concatenate([np.asarray(v, dtype=np.int64) for v in lists[j0:j1]])
 
-        near = build.near(x, area, tgt, count, source_of)
+        near = build.near(x, area, nrm, own, np.arange(n), count, source_of)
+        _limit_energy(near, [], area, total)
         stats = dict(levels=0, separation=0, near_nnz=int(near.nnz), far_nnz=[], cells=[],
                      seconds=time.perf_counter() - t0)
-        return ScatterOperator(np.arange(n), area, np.arange(len(tgt)), near, [], radius, dropped, stats,
+        return ScatterOperator(np.arange(n), area, near, [], radius, dropped, stats,
                                options.threads, options.block)
 
     # Finest cell: about `vertices_per_cell` vertices of area; at least extent / 2^20 so that
@@ -261,17 +265,12 @@ def scatter_operator(positions_mm: np.ndarray, areas_mm2: np.ndarray, params: Di
     extent = float(np.ptp(x, axis=0).max())
     h0 = max(np.sqrt(options.vertices_per_cell * area.sum() / n), extent * 2.0**-20, 1e-12)
     # Well-separated clusters are at least a·h_0 from their targets.
-    build = _Builder(params, radius, dtype, options.threads, closest=a * h0)
+    build = _Builder(params, radius, dtype, options.threads, disc, closest=a * h0)
     coords = np.floor((x - x.min(axis=0)) / h0).astype(np.int64)
     code = _morton(coords)
     order = np.argsort(code, kind="stable")
-    x, area, coords, code = x[order], area[order], coords[order], code[order]
-    inverse = np.empty(n, dtype=np.int64)
-    inverse[order] = np.arange(n)
-    # Targets in internal order, and where each one's row goes in the output.
-    internal = inverse[tgt]
-    by_internal = np.argsort(internal, kind="stable")
-    internal = internal[by_internal]
+    x, area, nrm, own, coords, code = x[order], area[order], nrm[order], own[order], coords[order], code[order]
+    internal = np.arange(n)  # every vertex is a target, rows in internal order
     # Top level: pairs it leaves out (more than `a` cells apart) are beyond the radius, or there
     # are none because the whole object spans at most `a` cells.
     top = 0
@@ -292,7 +291,7 @@ def scatter_operator(positions_mm: np.ndarray, areas_mm2: np.ndarray, params: Di
         separated = pairs[gap > a]
         pairs = pairs[gap <= a]
         if len(separated):
-            matrix = build.far(x, area, starts[level], cell_of[level], internal, separated)
+            matrix = build.far(x, area, nrm, starts[level], cell_of[level], internal, separated)
             levels.append(FarLevel(matrix, starts[level]))
             far_nnz.append(int(matrix.nnz))
             cells.append(len(starts[level]))
@@ -308,23 +307,58 @@ def scatter_operator(positions_mm: np.ndarray, areas_mm2: np.ndarray, params: Di
         return which[inner] + j0, source
 
     per_row = np.bincount(pairs[:, 0], weights=size[pairs[:, 1]], minlength=len(starts[0])).astype(np.int64)[keys]
-    near = build.near(x, area, internal, per_row, source_of)
+    near = build.near(x, area, nrm, own, internal, per_row, source_of)
+    _limit_energy(near, levels, area, total)
     stats = dict(cell_mm=float(h0), levels=top + 1, separation=a, near_nnz=int(near.nnz),
                  far_nnz=far_nnz[::-1], cells=cells[::-1], seconds=time.perf_counter() - t0)
-    return ScatterOperator(order, area, by_internal, near, levels[::-1], radius, dropped, stats,
+    return ScatterOperator(order, area, near, levels[::-1], radius, dropped, stats,
                            options.threads, options.block)
+
+
+def _limit_energy(near: sp.csr_matrix, levels: list, area: np.ndarray, total: np.ndarray) -> None:
+    """Scale the exact pairs of any source that would send out more than R_d, in place.
+
+    Disc-averaged sources overlap their neighbours' discs near the receiver and leave gaps
+    farther out, so on meshes coarser than ~2 z_r a source's outgoing energy Σ_o ΔA_o K(o, i) / ΔA_i
+    can exceed R_d by a few per cent (4 z_r: +2 %). Physically it cannot: the excess comes off the
+    source's exact pairs (its own disc included), leaving the clusters as they are. Needs every
+    vertex as a target (rows and columns in the same, internal, order).
+    """
+    n = len(area)
+    headroom = 1.0 - 1e-6  # room for float32 rounding
+    for c in range(3):
+        lo, hi = near.indptr[c * n], near.indptr[(c + 1) * n]
+        rows = np.repeat(np.arange(n), np.diff(near.indptr[c * n:(c + 1) * n + 1]))
+        cols = near.indices[lo:hi]
+        values = near.data[lo:hi].astype(np.float64)
+        near_out = np.bincount(cols, weights=area[rows] * values, minlength=n)  # Σ_o ΔA_o K(o, i)
+        fraction = np.divide(near_out, area, out=np.zeros(n), where=area > 0)
+        for f in levels:
+            cluster_rows = slice(c * n, (c + 1) * n)
+            per_cluster = f.matrix[cluster_rows].T @ area
+            sizes = np.diff(np.r_[f.starts, n])
+            fraction += np.repeat(per_cluster, sizes)
+        excess = fraction - headroom * total[c]
+        over = (excess > 0) & (fraction > 0)
+        if np.any(over):
+            near_fraction = np.divide(near_out, area, out=np.zeros(n), where=area > 0)
+            scale = np.ones(n)
+            scale[over] = np.clip(1.0 - excess[over] / np.maximum(near_fraction[over], 1e-300), 0.0, 1.0)
+            near.data[lo:hi] = (values * scale[cols]).astype(near.dtype)
 
 
 class _Builder:
     """Computes the matrices' entries in chunks of rows, on `threads` threads."""
 
-    def __init__(self, params: DipoleParams, radius: np.ndarray, dtype, threads: int, closest: float = 0.0):
-        self.params, self.radius, self.dtype, self.threads = params, radius, dtype, threads
+    def __init__(self, params: DipoleParams, radius: np.ndarray, dtype, threads: int, disc: DiscMean,
+                 closest: float = 0.0):
+        self.params, self.radius, self.dtype, self.threads, self.disc = params, radius, dtype, threads, disc
         self.table = _KernelTable.build(params, closest, float(radius.max())) if closest > 0 else None
 
-    def near(self, x, area, rows, per_row, source_of) -> sp.csr_matrix:
-        """(3T, n): Rd_c(|x_o - x_i|) ΔA_i for each target o = rows[j] and its sources, the disc
-        integral over ΔA_o where the source is the target itself.
+    def near(self, x, area, nrm, own, rows, per_row, source_of) -> sp.csr_matrix:
+        """(3T, n): ḡ_c ΔA_i (Rd averaged over the source's disc of radius a_i = sqrt(ΔA_i/π)
+        in its tangent plane, `DiscMean`) for each target o = rows[j] and its sources, and
+        `own` (n, 3), the integral over the target's own disc, where the source is the target.
 
         `per_row` (T,) counts each row's sources; `source_of(j0, j1)` gives (row, source) of
         rows j0..j1 - 1, grouped by row."""
@@ -333,19 +367,22 @@ class _Builder:
             o = rows[which]
             delta = x[o] - x[i]
             d = np.sqrt(np.einsum("ij,ij->i", delta, delta))
-            own = o == i
-            disc = disc_integral(np.sqrt(area[o[own]] / np.pi), self.params)
+            itself = o == i
+            inside = d <= self.radius.max()
+            mean = np.zeros((len(d), 3))
+            mean[inside] = self.disc(d[inside], np.sqrt(area[i[inside]] / np.pi),
+                                     np.abs(np.einsum("ij,ij->i", delta[inside], nrm[i[inside]])))
             out = []
             for c in range(3):
-                keep = (d <= self.radius[c]) | own
-                value = _profile(d[keep], self.params, c)[0] * area[i[keep]]
-                value[own[keep]] = disc[:, c]
+                keep = (d <= self.radius[c]) | itself
+                value = mean[keep, c] * area[i[keep]]
+                value[itself[keep]] = own[o[itself], c]
                 out.append((keep, value))
             return which, i, out
 
         return self._assemble(entries, per_row, len(x))
 
-    def far(self, x, area, starts, cell_of, rows, pairs) -> sp.csr_matrix:
+    def far(self, x, area, nrm, starts, cell_of, rows, pairs) -> sp.csr_matrix:
         """(3T, m): each target's cluster kernel Rd_c(D) + ½ tr(H Σ) for the clusters its cell
         reads at this level (`pairs` of target cell, source cell)."""
         n, m = len(x), len(starts)
@@ -356,7 +393,11 @@ class _Builder:
         # Area covariance of each cluster, six components (xx, yy, zz, xy, xz, yz), (6, m).
         products = np.stack([off[0] * off[0], off[1] * off[1], off[2] * off[2],
                              off[0] * off[1], off[0] * off[2], off[1] * off[2]])
-        spread = np.add.reduceat(products * area, starts, axis=1) / safe
+        # Each vertex is a disc of its area in its tangent plane (as in the near pairs), of
+        # covariance (a²/4)(I - n nᵀ) with a² = ΔA/π.
+        nx, ny, nz = nrm.T
+        disc = np.stack([1.0 - nx * nx, 1.0 - ny * ny, 1.0 - nz * nz, -nx * ny, -nx * nz, -ny * nz]) * (area / (4 * np.pi))
+        spread = np.add.reduceat((products + disc) * area, starts, axis=1) / safe
         trace = spread[0] + spread[1] + spread[2]
         # Clusters without area gather nothing: leave them out.
         pairs = pairs[cluster_area[pairs[:, 1]] > 0]
@@ -449,7 +490,7 @@ class _KernelTable:
         d = lo * np.exp(np.linspace(0.0, span, nodes))
         value = np.empty((3, 3, nodes))
         for c in range(3):
-            f, f1, f2 = _profile(d, params, c, derivatives=True)
+            f, f1, f2 = profile_derivatives(d, params, c)
             # ½ tr(H Σ) for a radial function: H = f'' ûûᵀ + (f'/D)(I - ûûᵀ).
             value[c] = f, 0.5 * (f2 - f1 / d), 0.5 * f1 / d
         slope = np.diff(value, axis=2, append=value[..., -1:])
@@ -532,23 +573,3 @@ def _gather(keys: np.ndarray, ptr: np.ndarray, items: np.ndarray | None = None) 
     which = np.repeat(np.arange(len(keys)), count)
     index = np.repeat(ptr[keys] - (np.cumsum(count) - count), count) + np.arange(len(which))
     return which, index if items is None else items[index]
-
-
-def _profile(r: np.ndarray, p: DipoleParams, c: int, derivatives: bool = False) -> list[np.ndarray]:
-    """Rd_c(r) and, if asked, its first and second derivatives in r (channel c), float64."""
-    s = p.sigma_tr[c]
-    out = [np.zeros_like(r) for _ in range(3 if derivatives else 1)]
-    for z in (p.z_r[c], p.z_v[c]):
-        d2 = r * r + z * z
-        d = np.sqrt(d2)
-        e = np.exp(-s * d)
-        out[0] += z * (1.0 + s * d) * e / (d2 * d)
-        if derivatives:
-            # g(d) = (1 + sd) e^(-sd) / d³: g' = -e (s²d² + 3sd + 3) / d⁴, g'' = e (s³d³ + 5s²d² + 12sd + 12) / d⁵;
-            # chain rule with dd/dr = r/d, d²d/dr² = z²/d³.
-            g1 = -e * (s * s * d2 + 3.0 * s * d + 3.0) / (d2 * d2)
-            g2 = e * (s**3 * d2 * d + 5.0 * s * s * d2 + 12.0 * s * d + 12.0) / (d2 * d2 * d)
-            out[1] += z * g1 * r / d
-            out[2] += z * (g2 * r * r / d2 + g1 * z * z / (d2 * d))
-    k = p.alpha_prime[c] / (4.0 * np.pi)
-    return [k * o for o in out]

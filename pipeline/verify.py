@@ -21,7 +21,7 @@ from .clean import WELD_TOLERANCE, area_weighted_normals, weld_surface
 from .load import load_scene
 from .materials import Material
 from .reference import Light, reference_scattering
-from .visibility import direction_visibility
+from .visibility import direction_visibility, point_visibility
 
 TECHNIQUES = ("prt",)
 DEFAULT_LIGHT = (0.4, 0.8, 0.45)
@@ -30,13 +30,16 @@ PLAIN_ALBEDO = (0.8, 0.8, 0.8)
 
 
 def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT, size: int = 512,
-                out_dir: str | os.PathLike | None = None, frames: int = 20) -> dict:
+                out_dir: str | os.PathLike | None = None, frames: int = 20, light_pos=None) -> dict:
     """Render `path` (.glb) with `technique`'s runtime and with the offline reference.
 
     Parameters
     ----------
     light_dir : (3,) float
         World direction towards a directional light of unit irradiance.
+    light_pos : (3,) float, optional
+        World position of a point light instead (world units; the meshes' world transforms must
+        not scale). Its intensity gives unit irradiance at the centre of the objects' bounds.
     size : int
         Image width and height in pixels.
     out_dir : path, optional
@@ -45,7 +48,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     Returns
     -------
     dict
-        ``technique``, ``light_dir``, ``rmse_image``, ``rmse_object``, ``rmse_object_lambert``,
+        ``technique``, ``light_dir`` (towards the light from the objects' centre), ``light_pos``
+        (None for a directional light), ``rmse_image``, ``rmse_object``, ``rmse_object_lambert``,
         ``lambert_scale``, ``bytes_per_vertex``, ``bake_seconds``, ``frame_ms_sss``,
         ``frame_ms_plain``, ``reference_seconds``, ``exposure``, ``pngs``.
     """
@@ -60,43 +64,69 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     if light_world.shape != (3,) or not np.all(np.isfinite(light_world)) or not np.linalg.norm(light_world) > 0:
         raise ValueError(f"verify: light direction must be three finite numbers, not all zero, got {light_dir}")
     light_world = light_world / np.linalg.norm(light_world)
+    point = None if light_pos is None else np.asarray(light_pos, dtype=np.float64)
+    if point is not None and (point.shape != (3,) or not np.all(np.isfinite(point))):
+        raise ValueError(f"verify: light position must be three finite numbers, got {light_pos}")
     prt_data = read_prt_glb(path)
     gltf = pygltflib.GLTF2.load(str(path))
     scene = load_scene(str(path))
+    instances = [(mi, pi, world) for mi, worlds in sorted(scene.mesh_instances().items())
+                 for pi in range(len(scene.meshes[mi].primitives)) if (mi, pi) in prt_data for world in worlds]
+    if not instances:
+        raise ValueError(f"verify: {path} has no drawable primitive with prt data")
+    mm_world = {float((gltf.meshes[mi].extras or {}).get("sssbake", {})["scaleMm"]) for mi, _, _ in instances}
+    if point is not None:
+        scales = [abs(np.linalg.det(world[:3, :3])) for _, _, world in instances]
+        if len(mm_world) > 1 or not np.allclose(scales, 1.0, rtol=1e-6):
+            raise ValueError(f"verify: {path}: a point light needs one scaleMm and unscaled world transforms")
+        points = np.concatenate([(w[:3, :3] @ scene.meshes[mi].primitives[pi].positions.T).T + w[:3, 3]
+                                 for mi, pi, w in instances])
+        centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+        if not np.linalg.norm(point - centre) > 0:
+            raise ValueError(f"verify: the point light sits at the objects' centre {centre.tolist()}; move it")
+        light_world = (point - centre) / np.linalg.norm(point - centre)
+        intensity = float(np.linalg.norm(point - centre) * next(iter(mm_world))) ** 2
 
     sss_items, ref_items, lambert_items = [], [], []
     t_ref = time.perf_counter()
-    for mi, worlds in sorted(scene.mesh_instances().items()):
-        mesh_extras = (gltf.meshes[mi].extras or {}).get("sssbake", {})
-        for pi, prim in enumerate(scene.meshes[mi].primitives):
-            if (mi, pi) not in prt_data:
-                continue
-            material = _material(gltf, prim.material, path)
-            mm = float(mesh_extras["scaleMm"])
-            normals = prim.normals if prim.normals is not None else area_weighted_normals(prim.positions, prim.faces)
-            # Seam vertices share positions: weld them, or a zero distance would read Rd(0).
-            diagonal = float(np.linalg.norm(np.ptp(prim.positions, axis=0)))
-            surface = weld_surface([prim], WELD_TOLERANCE * diagonal)
-            weld = surface.weld[0]
-            for world in worlds:
-                linear = world[:3, :3]
-                omega = np.linalg.solve(linear, light_world)
-                omega /= np.linalg.norm(omega)
-                ref = reference_scattering(surface, mm, material, Light("directional", tuple(omega)))[:, weld]
-                visible = direction_visibility(surface.positions, surface.faces, surface.normals, omega[None])[weld, 0]
-                lambert = np.clip(normals @ omega, 0.0, None) * visible
-                base = dict(positions=prim.positions, normals=normals, faces=prim.faces, model=world, eta=material.eta)
-                sss_items.append({**base, "prt": prt_data[(mi, pi)]})
-                ref_items.append({**base, "q": ref.T})
-                lambert_items.append({**base, "q": np.repeat(lambert[:, None], 3, axis=1)})
+    for mi, pi, world in instances:
+        prim = scene.meshes[mi].primitives[pi]
+        material = _material(gltf, prim.material, path)
+        mm = float(gltf.meshes[mi].extras["sssbake"]["scaleMm"])
+        normals = prim.normals if prim.normals is not None else area_weighted_normals(prim.positions, prim.faces)
+        # Seam vertices share positions: weld them, or a zero distance would read Rd(0).
+        diagonal = float(np.linalg.norm(np.ptp(prim.positions, axis=0)))
+        surface = weld_surface([prim], WELD_TOLERANCE * diagonal)
+        weld = surface.weld[0]
+        linear = world[:3, :3]
+        if point is None:
+            omega = np.linalg.solve(linear, light_world)
+            omega /= np.linalg.norm(omega)
+            light = Light("directional", tuple(omega))
+            visible = direction_visibility(surface.positions, surface.faces, surface.normals, omega[None])[weld, 0]
+            lambert = np.clip(normals @ omega, 0.0, None) * visible
+        else:
+            local = np.linalg.solve(linear, point - world[:3, 3])
+            light = Light("point", position=tuple(local), intensity=intensity)
+            visible = point_visibility(surface.positions, surface.faces, surface.normals, local)[weld]
+            to_light = local - prim.positions
+            distance = np.linalg.norm(to_light, axis=1)
+            cos = np.einsum("ij,ij->i", normals, to_light) / np.maximum(distance, 1e-300)
+            lambert = np.clip(cos, 0.0, None) * visible * intensity / np.maximum(distance * mm, 1e-300) ** 2
+        ref = reference_scattering(surface, mm, material, light)[:, weld]
+        base = dict(positions=prim.positions, normals=normals, faces=prim.faces, model=world, eta=material.eta)
+        sss_items.append({**base, "prt": prt_data[(mi, pi)]})
+        ref_items.append({**base, "q": ref.T})
+        lambert_items.append({**base, "q": np.repeat(lambert[:, None], 3, axis=1)})
     reference_seconds = time.perf_counter() - t_ref
-    if not sss_items:
-        raise ValueError(f"verify: {path} has no drawable primitive with prt data")
 
     renderer = Renderer((size, size))
     world_points = np.concatenate([(it["model"][:3, :3] @ it["positions"].T).T + it["model"][:3, 3] for it in sss_items])
     camera = fit_camera(world_points)
-    light = RenderLight(False, tuple(light_world), 1.0)
+    if point is None:
+        light = RenderLight(False, tuple(light_world), 1.0)
+    else:
+        light = RenderLight(True, tuple(point), intensity, next(iter(mm_world)))
     image, mask = renderer.render(sss_items, camera, light)
     reference, ref_mask = renderer.render(ref_items, camera, light)
     lambert, _ = renderer.render(lambert_items, camera, light)
@@ -116,6 +146,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     return {
         "technique": technique,
         "light_dir": light_world.tolist(),
+        "light_pos": None if point is None else point.tolist(),
         "rmse_image": rmse(image, reference, exposure),
         "rmse_object": rmse(image, reference, exposure, ref_mask | mask),
         "rmse_object_lambert": rmse(lambert, reference, exposure, ref_mask),
