@@ -1,11 +1,11 @@
 """The offline reference every technique's ``verify`` compares against: the dipole sum over exact
 vertex pairs (no clustering, no precomputed directions) for one light, with visibility.
 
-    L_c(x_o) = Σ_i ḡ_c(|x_i - x_o|, a_i) ΔA_i · F_t(η, n_i·ω_i) max(0, n_i·ω_i) vis(x_i) E(x_i) / π
+    L_c(x_o) = Σ_i ∫_{cell_i} Rd_c(|p - x_o|) dp · F_t(η, n_i·ω_i) max(0, n_i·ω_i) vis(x_i) E(x_i) / π
 
-each source's Rd averaged over its area as a disc (`disc_average`), the self term the exact
-integral over the vertex's own disc, no source sending out more than R_d, sources within the radius that drops at most
-`energy_dropped` of R_d (1e-4 by default, 100× tighter than the bake's). The view-side Fresnel
+with the cells' integrals as in the bake (`near_field`), no source sending out more than R_d,
+sources within the radius that drops at most `energy_dropped` of R_d (1e-4 by default, 100×
+tighter than the bake's). The view-side Fresnel
 factor F_t(η, ω_o) is the renderer's, as for the runtime.
 """
 
@@ -17,10 +17,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .clean import Surface
-from .dipole import DipoleParams, disc_integral, radius_for_energy
-from .disc_average import DiscMean
+from .dipole import DipoleParams, radius_for_energy
 from .fresnel import fresnel_transmittance
 from .materials import Material
+from .near_field import NearField
 from .visibility import direction_visibility, point_visibility
 
 #: Vertex pairs evaluated at once (bounds memory: ~100 bytes per pair).
@@ -82,37 +82,34 @@ def reference_scattering(surface: Surface, mm_per_unit: float, material: Materia
     """(3, n) float64 scattered radiance at every surface vertex (before the view Fresnel)."""
     p = DipoleParams.from_material(material)
     x = surface.positions * mm_per_unit
-    area = surface.vertex_areas * mm_per_unit**2
-    source = incident_signal(surface, mm_per_unit, material, light) * area
+    field = NearField.build(x, surface.faces, surface.normals, p)
+    irradiance = incident_signal(surface, mm_per_unit, material, light)
     radius = radius_for_energy(energy_dropped, p)
-    disc = DiscMean.build(p, np.sqrt(area / np.pi))
-    active = np.flatnonzero(source > 0)
+    active = np.flatnonzero(irradiance * field.area > 0)
     if len(active) == 0:
         return np.zeros((3, len(x)))
-    normals = surface.normals
-    own = disc_integral(np.sqrt(area / np.pi), p)
-    out, fraction = _gather(x, area, normals, own, np.repeat(source[active, None], 3, axis=1), active, radius, disc, p)
-    # As in the bake (`scatter_operator._limit_energy`): no source sends out more than R_d.
+    out, fraction = _gather(field, np.repeat(irradiance[active, None], 3, axis=1), active, radius)
+    # As in the bake (`scatter_operator._limit_energy`): a source sending out more than R_d in
+    # all is scaled down as a whole.
     rd = 0.5 * p.alpha_prime * (np.exp(-p.sigma_tr * p.z_r) + np.exp(-p.sigma_tr * p.z_v))
-    excess = fraction - (1.0 - 1e-6) * rd[None, :]
-    over = np.flatnonzero((excess > 0).any(axis=1))
+    limit = (1.0 - 1e-6) * rd[None, :]
+    over = np.flatnonzero((fraction > limit).any(axis=1))
     if len(over):
-        cut = np.clip(excess[over] / fraction[over], 0.0, 1.0)  # share of each source to take away
-        less, _ = _gather(x, area, normals, own, source[active[over], None] * cut, active[over], radius, disc, p)
+        cut = 1.0 - np.minimum(1.0, limit / np.maximum(fraction[over], 1e-300))  # share taken away
+        less, _ = _gather(field, irradiance[active[over], None] * cut, active[over], radius)
         out -= less
     return np.maximum(out, 0.0)
 
 
-def _gather(x: np.ndarray, area: np.ndarray, normals: np.ndarray, own: np.ndarray, weight: np.ndarray,
-            sources: np.ndarray, radius: np.ndarray, disc: DiscMean, p: DipoleParams) -> tuple[np.ndarray, np.ndarray]:
-    """Σ_i ḡ_c weight_ic over `sources` at every vertex (ḡ: Rd averaged over the source's disc
-    in its tangent plane; `own` (n, 3), the integral over its own disc, for the vertex itself),
-    and each source's outgoing fraction Σ_o ΔA_o ḡ_c.
+def _gather(field: NearField, signal: np.ndarray, sources: np.ndarray,
+            radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Σ_i W_c(o, i) signal_ic over `sources` at every vertex o, W = ∫_{cell_i} Rd_c(|p - x_o|) dp
+    (`NearField.weights`), and each source's outgoing fraction Σ_o ΔA_o W_c(o, i) / ΔA_i.
 
     Parameters
     ----------
-    weight : (s, 3) float64
-        Flux per source and channel (ΔA_i E_i).
+    signal : (s, 3) float64
+        Irradiance entering per unit area, per source and channel.
     sources : (s,) int64
 
     Returns
@@ -120,6 +117,7 @@ def _gather(x: np.ndarray, area: np.ndarray, normals: np.ndarray, own: np.ndarra
     out : (3, n) float64
     fraction : (s, 3) float64
     """
+    x, area = field.positions, field.area
     n = len(x)
     out = np.zeros((3, n))
     fraction = np.zeros((len(sources), 3))
@@ -136,15 +134,11 @@ def _gather(x: np.ndarray, area: np.ndarray, normals: np.ndarray, own: np.ndarra
         rows = np.repeat(targets, counts)
         which = np.concatenate([np.asarray(lst, dtype=np.int64) for lst in lists])
         cols = sources[which]
-        delta = x[rows] - x[cols]
-        d = np.linalg.norm(delta, axis=1)
-        itself = rows == cols
-        mean = disc(d, np.sqrt(area[cols] / np.pi), np.abs(np.einsum("ij,ij->i", delta, normals[cols])))
+        d = np.linalg.norm(x[rows] - x[cols], axis=1)
+        weight = field.weights(rows, cols)
         for c in range(3):
-            per_area = mean[:, c]
-            per_area[d > radius[c]] = 0.0
-            per_area[itself] = np.divide(own[rows[itself], c], area[rows[itself]], out=np.zeros(int(itself.sum())),
-                                         where=area[rows[itself]] > 0)
-            out[c] += np.bincount(rows, weights=per_area * weight[which, c], minlength=n)
-            fraction[:, c] += np.bincount(which, weights=per_area * area[rows], minlength=len(sources))
+            w = np.where(d <= radius[c], weight[:, c], 0.0)
+            out[c] += np.bincount(rows, weights=w * signal[which, c], minlength=n)
+            fraction[:, c] += np.bincount(which, weights=w * area[rows], minlength=len(sources))
+    fraction /= np.where(area[sources] > 0, area[sources], 1.0)[:, None]
     return out, fraction

@@ -2,11 +2,12 @@
 
 For signals E (n, K) at the surface vertices (irradiance of K lights, say), per colour channel c::
 
-    q_c[o, :] = Σ_i ḡ_c(|x_i - x_o|, a_i) ΔA_i E[i, :]
+    q_c[o, :] = Σ_i ∫_{cell_i} Rd_c(|p - x_o|) dp E[i, :]
 
-with ḡ the profile Rd averaged over the source's area, a disc of radius a_i = sqrt(ΔA_i/π)
-(`disc_average`: point samples under-resolve Rd on meshes coarser than z_r), the vertex's own
-disc integrated exactly (`dipole.disc_integral`), sources beyond the energy radius R_c dropped (at
+over each source's cell (a third of its triangles): a disc of its area in its tangent plane
+(`disc_average`: point samples under-resolve Rd on meshes coarser than z_r), split into its
+sub-triangles near the receiver so that cells tile (`near_field`), the receiver's own cell
+integrated exactly (`cell_integral`); sources beyond the energy radius R_c dropped (at
 most `energy_dropped` of R_d on a plane), and no source sending out more than R_d in all.
 
 Not O(N²): the energy radius of marble at realistic scale covers thousands of vertices. Vertices
@@ -45,7 +46,7 @@ from scipy.spatial import cKDTree
 
 from .clean import vertex_areas
 from .dipole import DipoleParams, disc_integral, profile_derivatives, radius_for_energy
-from .disc_average import DiscMean
+from .near_field import NearField
 
 #: Pair entries computed at once per thread while building (bounds the build's temporaries).
 ENTRIES_PER_CHUNK = 1_000_000
@@ -99,11 +100,12 @@ class ScatterOperator:
     ----------
     order : (n,) int64
         Caller's index of each internal vertex.
-    area : (n,) float64
-        ΔA per internal vertex, mm².
+    source_area : (3, n) float64
+        Per channel, ΔA of each internal vertex (mm²) times its energy scale (`_limit_energy`):
+        what the clusters' Σ ΔA E weigh.
     near : csr_matrix (3n, n)
-        Exact pairs in internal order; channel c in rows c·n .. c·n + n - 1: Rd_c ΔA_i, the disc integral for the
-        target's own area.
+        Exact pairs in internal order; channel c in rows c·n .. c·n + n - 1: ∫_{cell_i} Rd_c,
+        times the source's energy scale.
     levels : list of FarLevel
         The cluster terms of each level that has any.
     radius_mm : (3,) float64
@@ -118,7 +120,7 @@ class ScatterOperator:
     """
 
     order: np.ndarray
-    area: np.ndarray
+    source_area: np.ndarray
     near: sp.csr_matrix
     levels: list = field(default_factory=list)
     radius_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -135,7 +137,7 @@ class ScatterOperator:
     @property
     def nbytes(self) -> int:
         """Bytes of the stored matrices and index arrays."""
-        total = self.order.nbytes + self.area.nbytes + _csr_bytes(self.near)
+        total = self.order.nbytes + self.source_area.nbytes + _csr_bytes(self.near)
         return total + sum(_csr_bytes(f.matrix) + f.starts.nbytes for f in self.levels)
 
     def apply(self, signal: np.ndarray) -> np.ndarray:
@@ -164,9 +166,10 @@ class ScatterOperator:
         def run(b: slice) -> None:
             e = signal[self.order, b]
             q = self.near @ e.astype(dtype, copy=False)
-            weighted = e * self.area[:, None]
+            weighted = [e * self.source_area[c][:, None] for c in range(3)]
             for f in self.levels:
-                q += f.matrix @ np.add.reduceat(weighted, f.starts, axis=0).astype(dtype, copy=False)
+                moments = np.concatenate([np.add.reduceat(w, f.starts, axis=0) for w in weighted])
+                q += f.matrix @ moments.astype(dtype, copy=False)
             out[:, self.order, b] = q.reshape(3, n, -1)
 
         blocks = [slice(s, min(k, s + self.block)) for s in range(0, k, self.block)]
@@ -183,8 +186,9 @@ class FarLevel:
 
     Attributes
     ----------
-    matrix : csr_matrix (3n, m)
-        Per channel block of rows, each target's kernel for the clusters' Σ ΔA E.
+    matrix : csr_matrix (3n, 3m)
+        Block-diagonal in the channels: rows c·n + o, columns c·m + cluster, each target's
+        kernel for the clusters' Σ ΔA E of channel c.
     starts : (m,) int64
         First internal vertex of each cluster (clusters are contiguous runs).
     """
@@ -224,9 +228,6 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
     if len(tri) and (tri.dtype.kind not in "iu" or tri.min() < 0 or tri.max() >= len(x)):
         raise ValueError(f"scatter: faces must index the {len(x)} vertices")
     area = vertex_areas(x, tri)
-    # The vertex's own area as a disc, like its neighbours': discs of equal area overlap near the
-    # receiver where cells would tile, and on regular meshes the overlaps balance (plane tests).
-    own = disc_integral(np.sqrt(area / np.pi), params)
     if not 0.0 < options.energy_dropped < 1.0:
         raise ValueError(f"scatter: energy_dropped must be in (0, 1), got {options.energy_dropped}")
     if options.separation < 1 or not options.vertices_per_cell > 0:
@@ -241,10 +242,8 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
     dropped = np.clip(np.where(total > 0, 1.0 - kept / np.where(total > 0, total, 1.0), 0.0), 0.0, 1.0)
     r_max = float(radius.max())
     dtype = np.float32 if options.float32 else np.float64
-    disc = DiscMean.build(params, np.sqrt(area / np.pi))
-    build = _Builder(params, radius, dtype, options.threads, disc)  # exact pairs only
-
     if not options.hierarchy:
+        build = _Builder(params, radius, dtype, options.threads, NearField.build(x, tri, nrm, params))
         lists = cKDTree(x).query_ball_point(x, r_max)
         count = np.fromiter((len(v) for v in lists), dtype=np.int64, count=len(lists))
 
@@ -252,11 +251,11 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
             which = np.repeat(np.arange(j0, j1), count[j0:j1])
             return which, np.concatenate([np.asarray(v, dtype=np.int64) for v in lists[j0:j1]])
 
-        near = build.near(x, area, nrm, own, np.arange(n), count, source_of)
-        _limit_energy(near, [], area, total)
+        near = build.near(np.arange(n), count, source_of)
+        source_area = _limit_energy(near, [], area, total)
         stats = dict(levels=0, separation=0, near_nnz=int(near.nnz), far_nnz=[], cells=[],
                      seconds=time.perf_counter() - t0)
-        return ScatterOperator(np.arange(n), area, near, [], radius, dropped, stats,
+        return ScatterOperator(np.arange(n), source_area, near, [], radius, dropped, stats,
                                options.threads, options.block)
 
     # Finest cell: about `vertices_per_cell` vertices of area; at least extent / 2^20 so that
@@ -264,12 +263,15 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
     a = options.separation
     extent = float(np.ptp(x, axis=0).max())
     h0 = max(np.sqrt(options.vertices_per_cell * area.sum() / n), extent * 2.0**-20, 1e-12)
-    # Well-separated clusters are at least a·h_0 from their targets.
-    build = _Builder(params, radius, dtype, options.threads, disc, closest=a * h0)
     coords = np.floor((x - x.min(axis=0)) / h0).astype(np.int64)
     code = _morton(coords)
     order = np.argsort(code, kind="stable")
-    x, area, nrm, own, coords, code = x[order], area[order], nrm[order], own[order], coords[order], code[order]
+    x, area, nrm, coords, code = x[order], area[order], nrm[order], coords[order], code[order]
+    inverse = np.empty(n, dtype=np.int64)
+    inverse[order] = np.arange(n)
+    # Well-separated clusters are at least a·h_0 from their targets.
+    build = _Builder(params, radius, dtype, options.threads, NearField.build(x, inverse[tri], nrm, params),
+                     closest=a * h0)
     internal = np.arange(n)  # every vertex is a target, rows in internal order
     # Top level: pairs it leaves out (more than `a` cells apart) are beyond the radius, or there
     # are none because the whole object spans at most `a` cells.
@@ -307,80 +309,75 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
         return which[inner] + j0, source
 
     per_row = np.bincount(pairs[:, 0], weights=size[pairs[:, 1]], minlength=len(starts[0])).astype(np.int64)[keys]
-    near = build.near(x, area, nrm, own, internal, per_row, source_of)
-    _limit_energy(near, levels, area, total)
+    near = build.near(internal, per_row, source_of)
+    source_area = _limit_energy(near, levels, area, total)
     stats = dict(cell_mm=float(h0), levels=top + 1, separation=a, near_nnz=int(near.nnz),
                  far_nnz=far_nnz[::-1], cells=cells[::-1], seconds=time.perf_counter() - t0)
-    return ScatterOperator(order, area, near, levels[::-1], radius, dropped, stats,
+    return ScatterOperator(order, source_area, near, levels[::-1], radius, dropped, stats,
                            options.threads, options.block)
 
 
-def _limit_energy(near: sp.csr_matrix, levels: list, area: np.ndarray, total: np.ndarray) -> None:
-    """Scale the exact pairs of any source that would send out more than R_d, in place.
+def _limit_energy(near: sp.csr_matrix, levels: list, area: np.ndarray, total: np.ndarray) -> np.ndarray:
+    """Scale down every source that would send out more than R_d; returns `source_area` (3, n).
 
-    Disc-averaged sources overlap their neighbours' discs near the receiver and leave gaps
-    farther out, so on meshes coarser than ~2 z_r a source's outgoing energy Σ_o ΔA_o K(o, i) / ΔA_i
-    can exceed R_d by a few per cent (4 z_r: +2 %). Physically it cannot: the excess comes off the
-    source's exact pairs (its own disc included), leaving the clusters as they are. Needs every
-    vertex as a target (rows and columns in the same, internal, order).
+    A source's outgoing fraction Σ_o ΔA_o K(o, i) / ΔA_i is at most R_d on a plane and on convex
+    surfaces (chords are the plane's distances there); across folds and thin parts the Euclidean
+    kernel counts receivers on both sides and the sum can exceed R_d, which light cannot. Such a
+    source is scaled as a whole (its exact pairs in `near`, in place, and its weight in the
+    clusters), so the shape of its spread does not depend on where the near field ends. Needs
+    every vertex as a target (rows and columns in the same, internal, order).
     """
     n = len(area)
     headroom = 1.0 - 1e-6  # room for float32 rounding
+    weights = np.tile(area, 3)  # each channel block's target areas
+    source_area = np.tile(area, (3, 1))
+    far = [(f.matrix.T @ weights).reshape(3, -1) for f in levels]  # Σ_o ΔA_o K(o, cluster) per channel
     for c in range(3):
         lo, hi = near.indptr[c * n], near.indptr[(c + 1) * n]
         rows = np.repeat(np.arange(n), np.diff(near.indptr[c * n:(c + 1) * n + 1]))
         cols = near.indices[lo:hi]
-        values = near.data[lo:hi].astype(np.float64)
-        near_out = np.bincount(cols, weights=area[rows] * values, minlength=n)  # Σ_o ΔA_o K(o, i)
+        near_out = np.bincount(cols, weights=area[rows] * near.data[lo:hi].astype(np.float64), minlength=n)
         fraction = np.divide(near_out, area, out=np.zeros(n), where=area > 0)
-        for f in levels:
-            cluster_rows = slice(c * n, (c + 1) * n)
-            per_cluster = f.matrix[cluster_rows].T @ area
-            sizes = np.diff(np.r_[f.starts, n])
-            fraction += np.repeat(per_cluster, sizes)
-        excess = fraction - headroom * total[c]
-        over = (excess > 0) & (fraction > 0)
+        for f, per_cluster in zip(levels, far):
+            fraction += np.repeat(per_cluster[c], np.diff(np.r_[f.starts, n]))
+        over = fraction > headroom * total[c]
         if np.any(over):
-            near_fraction = np.divide(near_out, area, out=np.zeros(n), where=area > 0)
             scale = np.ones(n)
-            scale[over] = np.clip(1.0 - excess[over] / np.maximum(near_fraction[over], 1e-300), 0.0, 1.0)
-            near.data[lo:hi] = (values * scale[cols]).astype(near.dtype)
+            scale[over] = headroom * total[c] / fraction[over]
+            near.data[lo:hi] = (near.data[lo:hi].astype(np.float64) * scale[cols]).astype(near.dtype)
+            source_area[c] *= scale
+    return source_area
 
 
 class _Builder:
     """Computes the matrices' entries in chunks of rows, on `threads` threads."""
 
-    def __init__(self, params: DipoleParams, radius: np.ndarray, dtype, threads: int, disc: DiscMean,
+    def __init__(self, params: DipoleParams, radius: np.ndarray, dtype, threads: int, field: NearField,
                  closest: float = 0.0):
-        self.params, self.radius, self.dtype, self.threads, self.disc = params, radius, dtype, threads, disc
+        self.params, self.radius, self.dtype, self.threads, self.field = params, radius, dtype, threads, field
         self.table = _KernelTable.build(params, closest, float(radius.max())) if closest > 0 else None
 
-    def near(self, x, area, nrm, own, rows, per_row, source_of) -> sp.csr_matrix:
-        """(3T, n): ḡ_c ΔA_i (Rd averaged over the source's disc of radius a_i = sqrt(ΔA_i/π)
-        in its tangent plane, `DiscMean`) for each target o = rows[j] and its sources, and
-        `own` (n, 3), the integral over the target's own disc, where the source is the target.
+    def near(self, rows, per_row, source_of) -> sp.csr_matrix:
+        """(3T, n): ∫_{cell_i} Rd_c(|p - x_o|) dp (`NearField.weights`) for each target
+        o = rows[j] and its sources i within the channel's radius.
 
         `per_row` (T,) counts each row's sources; `source_of(j0, j1)` gives (row, source) of
         rows j0..j1 - 1, grouped by row."""
         def entries(j0, j1):
             which, i = source_of(j0, j1)
             o = rows[which]
-            delta = x[o] - x[i]
-            d = np.sqrt(np.einsum("ij,ij->i", delta, delta))
-            itself = o == i
+            x = self.field.positions
+            d = np.linalg.norm(x[o] - x[i], axis=1)
             inside = d <= self.radius.max()
-            mean = np.zeros((len(d), 3))
-            mean[inside] = self.disc(d[inside], np.sqrt(area[i[inside]] / np.pi),
-                                     np.abs(np.einsum("ij,ij->i", delta[inside], nrm[i[inside]])))
+            weight = np.zeros((len(d), 3))
+            weight[inside] = self.field.weights(o[inside], i[inside])
             out = []
             for c in range(3):
-                keep = (d <= self.radius[c]) | itself
-                value = mean[keep, c] * area[i[keep]]
-                value[itself[keep]] = own[o[itself], c]
-                out.append((keep, value))
+                keep = d <= self.radius[c]
+                out.append((keep, weight[keep, c]))
             return which, i, out
 
-        return self._assemble(entries, per_row, len(x))
+        return self._assemble(entries, per_row, len(self.field.positions))
 
     def far(self, x, area, nrm, starts, cell_of, rows, pairs) -> sp.csr_matrix:
         """(3T, m): each target's cluster kernel Rd_c(D) + ½ tr(H Σ) for the clusters its cell
@@ -432,7 +429,12 @@ class _Builder:
                 out.append((keep, kernel))
             return which, s, out
 
-        return self._assemble(entries, ptr[keys + 1] - ptr[keys], m)
+        matrix = self._assemble(entries, ptr[keys + 1] - ptr[keys], m)
+        # Channel c's rows read channel c's moments: columns c·m + cluster.
+        t = len(rows)
+        for c in range(1, 3):
+            matrix.indices[matrix.indptr[c * t]:matrix.indptr[(c + 1) * t]] += c * m
+        return sp.csr_matrix((matrix.data, matrix.indices, matrix.indptr), shape=(3 * t, 3 * m))
 
     def _assemble(self, entries, per_row: np.ndarray, width: int) -> sp.csr_matrix:
         """Stack per-channel entries into a (3T, width) CSR matrix.

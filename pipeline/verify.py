@@ -119,6 +119,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         ref_items.append({**base, "q": ref.T})
         lambert_items.append({**base, "q": np.repeat(lambert[:, None], 3, axis=1)})
     reference_seconds = time.perf_counter() - t_ref
+    if not any(np.any(it["q"] > 0) for it in ref_items):
+        raise ValueError(f"verify: {path}: the light reaches no vertex (inside the object, or behind it)")
 
     renderer = Renderer((size, size))
     world_points = np.concatenate([(it["model"][:3, :3] @ it["positions"].T).T + it["model"][:3, 3] for it in sss_items])

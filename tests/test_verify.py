@@ -30,13 +30,15 @@ def test_uncompressed_prt_beats_lambert_against_the_reference(tmp_path, capsys):
     assert Path(result["pngs"]["comparison"]).stat().st_size > 0
     # A point light: per-vertex direction and 1/d² falloff in the runtime and in the reference.
     assert main(["verify", str(out / "sphere.glb"), "--size", "96", "--frames", "2", "--json",
-                 "--light-pos", "2.5,1.5,2.0"]) == 0
+                 "--light-pos", "25,15,20"]) == 0  # the ball has radius 10, centred at the origin
     point = json.loads(capsys.readouterr().out)
-    assert point["light_pos"] == [2.5, 1.5, 2.0]
-    assert np.allclose(point["light_dir"], np.array([2.5, 1.5, 2.0]) / np.linalg.norm([2.5, 1.5, 2.0]), atol=0.05)
+    assert point["light_pos"] == [25.0, 15.0, 20.0]
+    assert np.allclose(point["light_dir"], np.array([25.0, 15.0, 20.0]) / np.linalg.norm([25.0, 15.0, 20.0]), atol=0.05)
     assert point["rmse_object"] < 0.03 and point["rmse_object"] < 0.75 * point["rmse_object_lambert"]
     assert main(["verify", str(out / "sphere.glb"), "--light-pos", "1,2"]) == 1
     assert "--light-pos takes three comma-separated numbers" in capsys.readouterr().err
+    assert main(["verify", str(out / "sphere.glb"), "--light-pos", "2,1,1"]) == 1  # inside the ball
+    assert "the light reaches no vertex" in capsys.readouterr().err
 
 
 def test_files_without_prt_get_a_clear_error(tmp_path, capsys):
