@@ -40,7 +40,9 @@ ENCODINGS: dict[str, tuple[int, type, bool]] = {
     "snorm16": (SHORT, np.int16, True),
     "unorm8": (UNSIGNED_BYTE, np.uint8, True),
     "unorm16": (UNSIGNED_SHORT, np.uint16, True),
-    # Plain integers (indices). glTF forbids UNSIGNED_INT vertex attributes, so 16 bits is the widest.
+    # Plain integers (indices, packed codes). glTF forbids UNSIGNED_INT vertex attributes, so 16
+    # bits is the widest.
+    "uint8": (UNSIGNED_BYTE, np.uint8, False),
     "uint16": (UNSIGNED_SHORT, np.uint16, False),
 }
 COMPONENT_DTYPES = {

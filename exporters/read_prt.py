@@ -35,7 +35,7 @@ def read_prt_glb(path: str | os.PathLike) -> dict[tuple[int, int], PrtData]:
             continue
         resolved = {k: read_accessor(gltf, v["accessor"], blob) if isinstance(v, dict) and "accessor" in v else v
                     for k, v in tables.items()}
-        names = [resolved["attributes"]["ref"], resolved["attributes"]["weights"], *resolved["attributes"]["dq"]]
+        names = _attribute_names(resolved)
         for j, prim in enumerate(mesh.primitives):
             per_vertex = {}
             for name in names:
@@ -66,7 +66,7 @@ def read_prt_usd(path: str | os.PathLike) -> dict[str, PrtData]:
                     if isinstance(v, dict) and "attribute" in v else v for k, v in tables.items()}
         api = UsdGeom.PrimvarsAPI(prim)
         per_vertex = {}
-        for name in [resolved["attributes"]["ref"], resolved["attributes"]["weights"], *resolved["attributes"]["dq"]]:
+        for name in _attribute_names(resolved):
             key = name.removeprefix("_SSS_PRT_").lower()
             primvar = api.GetPrimvar("sss:prt:" + key)
             if not primvar:
@@ -76,3 +76,9 @@ def read_prt_usd(path: str | os.PathLike) -> dict[str, PrtData]:
     if not out:
         raise PrtReadError(f"{path}: no mesh holds prt data (bake with --techniques prt)")
     return out
+
+
+def _attribute_names(tables: dict) -> list[str]:
+    """The per-vertex attributes the prt tables name (no weights attribute with 8-bit weights)."""
+    names = tables["attributes"]
+    return [names["ref"], *([names["weights"]] if "weights" in names else []), *names["dq"]]

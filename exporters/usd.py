@@ -13,7 +13,7 @@ Layout of the file (one self-contained crate file):
   interpolation), extent, subdivisionScheme ``none``, ``primvars:st``, ``primvars:st1``, ... from
   TEXCOORD_0, 1, ... (v flipped back to USD's bottom-up convention), displayColor/displayOpacity
   from the vertex colours, and ``sss:scaleMm`` (double, mm per file unit) when the asset has it;
-- each `VertexAttribute` as a float[] (int[] for ``uint16``) primvar (`VertexAttribute.usd_name`) with vertex interpolation,
+- each `VertexAttribute` as a float[] (int[] for ``uint8``, ``uint16``) primvar (`VertexAttribute.usd_name`) with vertex interpolation,
   ``elementSize`` k for (n, k) data, the unit and description in its ``customData`` (``unit``,
   ``description``) and the description as its documentation;
 - materials under ``/<Root>/Materials``: a Material with one UsdPreviewSurface shader, bound with
@@ -236,9 +236,10 @@ def _mesh(stage: Usd.Stage, path: Sdf.Path, prim: Primitive, attrs: tuple[Vertex
         size = data.shape[1] if data.ndim == 2 else None
         meta = {"unit": attr.unit, "description": attr.description}
         type_name = Sdf.ValueTypeNames.FloatArray
-        if attr.encoding == "uint16":
-            if data.size and (data.min() < 0 or data.max() > 65535 or np.any(data != np.round(data))):
-                raise ValueError(f"{where}: attribute {attr.usd_name} needs integers in [0, 65535]")
+        if attr.encoding in ("uint8", "uint16"):
+            top = np.iinfo(attr.encoding).max
+            if data.size and (data.min() < 0 or data.max() > top or np.any(data != np.round(data))):
+                raise ValueError(f"{where}: attribute {attr.usd_name} needs integers in [0, {top}]")
             data, type_name = data.astype(np.int32), Sdf.ValueTypeNames.IntArray
         primvars.append((name, type_name, data.reshape(-1), size, meta))
 

@@ -224,7 +224,9 @@ def bake_asset(
                 warnings.append(f"mesh {mesh.name!r}: prt needs one scattering material per mesh, it has "
                                 f"{len(mats)}; baked with {scene.materials[mats[0]].name!r}'s")
             compress = PrtCompressOptions(options.prt_mode, options.prt_reference_fraction, options.prt_sh_order,
-                                          options.prt_weights)
+                                          options.prt_weights, tables=options.prt_tables,
+                                          refine=options.prt_refine, weight_bits=options.prt_weight_bits,
+                                          byte_budget=options.prt_byte_budget)
             baked, _ = runner.run(
                 "prt", STAGE_VERSIONS["prt"], mesh_key,
                 {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "k": options.prt_directions,

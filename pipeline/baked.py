@@ -12,7 +12,7 @@ import numpy as np
 from .materials import Material
 from .scene import Scene, TextureRef
 
-SCHEMA_VERSION = "1.1.0"
+SCHEMA_VERSION = "1.2.0"
 
 
 @dataclass(frozen=True, eq=False)
@@ -33,8 +33,9 @@ class VertexAttribute:
         e.g. ``"mm"``; ``""`` for unitless.
     encoding : str
         How glTF stores it: ``"float32"``, a normalized type ``"snorm8"``, ``"snorm16"``,
-        ``"unorm8"``, ``"unorm16"`` (data must then lie in [-1, 1] or [0, 1]), or ``"uint16"``
-        (integers in [0, 65535], e.g. indices). USD stores int[] for ``"uint16"``, float[] otherwise.
+        ``"unorm8"``, ``"unorm16"`` (data must then lie in [-1, 1] or [0, 1]), or ``"uint8"``,
+        ``"uint16"`` (integers in [0, 255], [0, 65535], e.g. indices). USD stores int[] for those
+        two, float[] otherwise.
     description : str
     """
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from .config import EMPTY_CONFIG, ConfigError, load_config
 from .options import BAKE_DEFAULTS
-from .prt_compress import MODES, WEIGHTS
+from .prt_compress import MODES, TABLES, WEIGHT_BITS, WEIGHTS
 
 
 def _bake(args) -> int:
@@ -32,7 +32,8 @@ def _bake(args) -> int:
     if args.no_validate:
         overrides["validate"] = False
     for name in ("techniques", "prt_directions", "prt_energy_dropped", "prt_mode", "prt_reference_fraction",
-                 "prt_sh_order", "prt_weights"):
+                 "prt_sh_order", "prt_weights", "prt_tables", "prt_refine",
+                 "prt_weight_bits", "prt_byte_budget"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -58,6 +59,16 @@ def _bake(args) -> int:
     return 1 if summary["failed"] else 0
 
 
+def _vector(text: str, flag: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3:
+        raise ValueError(f"{flag} takes three comma-separated numbers, got {text!r}")
+    return values
+
+
 def _verify(args) -> int:
     from ..exporters.read_prt import PrtReadError
     from .verify import DEFAULT_LIGHT, verify_file
@@ -66,15 +77,18 @@ def _verify(args) -> int:
         print(f"error: {args.file}: verify reads the .glb files sssbake bake writes", file=sys.stderr)
         return 2
     try:
-        light = DEFAULT_LIGHT if args.light_dir is None else tuple(float(v) for v in args.light_dir.split(","))
-        result = verify_file(args.file, args.technique, light, args.size, args.out, args.frames)
+        light = DEFAULT_LIGHT if args.light_dir is None else _vector(args.light_dir, "--light-dir")
+        position = None if args.light_pos is None else _vector(args.light_pos, "--light-pos")
+        result = verify_file(args.file, args.technique, light, args.size, args.out, args.frames, position)
     except (OSError, ValueError, PrtReadError) as e:
         print(f"error: {args.file}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
         return 1
     if args.json:
         print(json.dumps(result))
     else:
-        print(f"{args.file} ({result['technique']}, light {np.round(result['light_dir'], 3).tolist()}): "
+        where = (f"point light at {np.round(result['light_pos'], 3).tolist()}" if result["light_pos"] is not None
+                 else f"light {np.round(result['light_dir'], 3).tolist()}")
+        print(f"{args.file} ({result['technique']}, {where}): "
               f"RMSE image {result['rmse_image']:.4g}, object {result['rmse_object']:.4g} "
               f"(plain Lambert, best-fit scaled: {result['rmse_object_lambert']:.4g}); "
               f"frame {result['frame_ms_sss']:.2f} ms vs plain {result['frame_ms_plain']:.2f} ms; "
@@ -172,6 +186,17 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--prt-sh-order", type=int, help=f"prt: SH order of Δq (default {BAKE_DEFAULTS.prt_sh_order})")
     b.add_argument("--prt-weights", choices=WEIGHTS,
                    help=f"prt: reference weights (default {BAKE_DEFAULTS.prt_weights})")
+    b.add_argument("--prt-tables", choices=TABLES,
+                   help=f"prt: reference tables, one per channel or one shared by the channels "
+                        f"(default {BAKE_DEFAULTS.prt_tables})")
+    b.add_argument("--prt-refine", type=float,
+                   help=f"prt: share of the reference points placed where the fit is worst "
+                        f"(default {BAKE_DEFAULTS.prt_refine})")
+    b.add_argument("--prt-weight-bits", type=int, choices=WEIGHT_BITS,
+                   help=f"prt: bits per weight code; 8 packs them with the triangle in 4 bytes (default "
+                        f"{BAKE_DEFAULTS.prt_weight_bits})")
+    b.add_argument("--prt-byte-budget", type=float,
+                   help="prt: bytes per vertex to spend; sets the reference count (default: from the fraction)")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")
@@ -187,6 +212,8 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("file", help="a .glb written by sssbake bake")
     v.add_argument("--technique", default="prt", choices=["prt"])
     v.add_argument("--light-dir", help="x,y,z world direction towards a directional light (default 0.4,0.8,0.45)")
+    v.add_argument("--light-pos", help="x,y,z world position of a point light instead (unit irradiance at the "
+                                       "objects' centre)")
     v.add_argument("--size", type=int, default=512, help="image width and height (default 512)")
     v.add_argument("--out", help="folder for the PNGs (default: next to the file)")
     v.add_argument("--frames", type=int, default=20, help="frames timed per shader (default 20)")

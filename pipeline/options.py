@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
-from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, WEIGHTS
+from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, TABLES, WEIGHT_BITS, WEIGHTS
 from .scatter_operator import SCATTER_DEFAULTS
 from .sh import MAX_ORDER
 
@@ -42,7 +42,8 @@ class BakeOptions:
         prt: light directions K.
     prt_energy_dropped : float
         prt: fraction of R_d the gather radius may drop.
-    prt_mode, prt_reference_fraction, prt_sh_order, prt_weights
+    prt_mode, prt_reference_fraction, prt_sh_order, prt_weights, prt_tables, prt_refine, prt_weight_bits,
+    prt_byte_budget
         prt compression (see `prt_compress.PrtCompressOptions`).
     """
 
@@ -60,6 +61,10 @@ class BakeOptions:
     prt_reference_fraction: float = PRT_COMPRESS_DEFAULTS.reference_fraction
     prt_sh_order: int = PRT_COMPRESS_DEFAULTS.sh_order
     prt_weights: str = PRT_COMPRESS_DEFAULTS.weights
+    prt_tables: str = PRT_COMPRESS_DEFAULTS.tables
+    prt_refine: float = PRT_COMPRESS_DEFAULTS.refine
+    prt_weight_bits: int = PRT_COMPRESS_DEFAULTS.weight_bits
+    prt_byte_budget: float | None = PRT_COMPRESS_DEFAULTS.byte_budget
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -100,6 +105,14 @@ def check_options(o: BakeOptions) -> None:
     if o.prt_mode not in MODES or o.prt_weights not in WEIGHTS:
         raise ValueError(f"prt_mode must be one of {list(MODES)} and prt_weights one of {list(WEIGHTS)}, "
                          f"got {o.prt_mode!r}, {o.prt_weights!r}")
+    if o.prt_tables not in TABLES:
+        raise ValueError(f"prt_tables must be one of {list(TABLES)}, got {o.prt_tables!r}")
+    if o.prt_weight_bits not in WEIGHT_BITS:
+        raise ValueError(f"prt_weight_bits must be one of {list(WEIGHT_BITS)}, got {o.prt_weight_bits!r}")
+    if o.prt_byte_budget is not None and not (isinstance(o.prt_byte_budget, (int, float)) and o.prt_byte_budget > 0):
+        raise ValueError(f"prt_byte_budget must be a positive number of bytes per vertex, got {o.prt_byte_budget!r}")
+    if not (0.0 <= o.prt_refine < 1.0):
+        raise ValueError(f"prt_refine must be in [0, 1), got {o.prt_refine}")
     if not (0.0 < o.prt_reference_fraction <= 1.0):
         raise ValueError(f"prt_reference_fraction must be in (0, 1], got {o.prt_reference_fraction}")
     if o.prt_mode == "sh" and o.prt_sh_order < 1:

@@ -9,12 +9,15 @@ and light direction ω (unit, object space, pointing from the surface towards th
     q_c(ω) = Σ_k w_k · T_c[r_k](ω)  +  Σ_i dq_c,i · y_i(ω)
 
 - ``r_0, r_1, r_2 = ref_triangles[vertex_triangle]`` are the vertex's reference points and
-  ``w_0 = weight_scale · weight_codes[:, 0] / 32767``, ``w_1`` likewise, ``w_2 = 1 - w_0 - w_1``.
+  ``w_0 = weight_scale · weight_codes[:, 0] / M``, ``w_1`` likewise, ``w_2 = 1 - w_0 - w_1``, with
+  ``M = 2^(weight_bits - 1) - 1`` (127 or 32767).
 - ``T_c[r](ω)`` interpolates the reference point's table over the direction set: the hull
   triangle (a, b, c) of ``directions`` that contains ω — found from ``direction_lookup`` at ω's
   octahedral texel, then up to ``directions.WALK_STEPS`` steps to ``direction_neighbours`` across
   the edge with the most negative barycentric — barycentrics ``β ∝ direction_inverse[t] @ ω``
-  (clamped at 0, normalised to sum 1), ``T = Σ β_a · lut[c, ref_codes[r, a, c]]``.
+  (clamped at 0, normalised to sum 1). RGB tables (``ref_codes.shape[2] == 3``):
+  ``T = Σ β_a · lut[c, ref_codes[r, a, c]]``; one shared table per reference point
+  (``ref_codes.shape[2] == 1``): ``T = ref_scale[r, c] · Σ β_a · lut[c, ref_codes[r, a, 0]]``.
 - ``y_i`` is the real spherical harmonic basis (Sloan 2002 normalisation, index i = l² + l + m,
   l < sh_order) and ``dq_c,i = dq_scale[c, i] · dq_codes[:, c, i] / 127``.
 
@@ -50,19 +53,27 @@ class PrtData:
     direction_neighbours : (T, 3) int32
         Hull triangle across the edge opposite each corner.
     lut : (3, 256) float32
-        Lloyd reconstruction levels per channel (radiance per unit irradiance, 1/sr).
+        Reconstruction levels per colour channel: radiance per unit irradiance (1/sr) for RGB
+        tables, the unitless shape for shared tables (one code, a level per channel).
     ref_vertices : (R,) int64
         Surface vertex of each reference point.
-    ref_codes : (R, K, 3) uint8
-        Lloyd codes of q at each reference point, per direction and channel.
+    ref_codes : (R, K, C_t) uint8
+        Lloyd codes of each reference point's table per direction: q per colour channel (C_t = 3),
+        or one shape shared by the channels (C_t = 1).
+    ref_scale : (R, 3) float32
+        With shared tables, each reference point's RGB colour multiplying its shape (1/sr);
+        (0, 3) with RGB tables.
     ref_triangles : (F, 3) int32
         Triangles over reference points (indices into ``ref_vertices``).
     vertex_triangle : (n,) int32
         Per surface vertex, its triangle in ``ref_triangles`` (0 when R == 0).
     weight_codes : (n, 2) int16
-        Per surface vertex, w_0 and w_1 as signed normalised 16-bit values.
+        Per surface vertex, w_0 and w_1 as signed codes, |code| <= M (see above).
     weight_scale : float
         Range of the weights: 1 for barycentric weights, larger for least-squares weights.
+    weight_bits : int
+        8 or 16. With 8 the exporters store a vertex's triangle and both codes in one 4-byte
+        attribute, which needs ``len(ref_triangles) <= 65536`` (see `prt_layout`).
     dq_codes : (n, 3, C) int8
         Per surface vertex and channel, SH coefficients of Δq as signed normalised bytes; C = sh_order².
     dq_scale : (3, C) float32
@@ -81,10 +92,12 @@ class PrtData:
     lut: np.ndarray
     ref_vertices: np.ndarray
     ref_codes: np.ndarray
+    ref_scale: np.ndarray
     ref_triangles: np.ndarray
     vertex_triangle: np.ndarray
     weight_codes: np.ndarray
     weight_scale: float
+    weight_bits: int
     dq_codes: np.ndarray
     dq_scale: np.ndarray
     sh_order: int

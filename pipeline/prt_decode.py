@@ -7,6 +7,7 @@ import numpy as np
 
 from .directions import DirectionSet, lookup_weights
 from .prt_data import PrtData
+from .prt_layout import index_table
 from .sh import sh_basis
 
 
@@ -24,11 +25,11 @@ def decode_at_directions(prt: PrtData) -> np.ndarray:
     n, k = prt.vertex_count, len(prt.directions)
     out = np.zeros((3, n, k))
     if len(prt.ref_codes):
-        w = decode_weights(prt.weight_codes, prt.weight_scale)
+        w = decode_weights(prt.weight_codes, prt.weight_scale, prt.weight_bits)
         corners = prt.ref_triangles[prt.vertex_triangle]
-        lut = prt.lut.astype(np.float64)
+        tables = reference_tables(prt.ref_codes, prt.lut, prt.ref_scale)
         for c in range(3):
-            out[c] = blend(w, lut[c][prt.ref_codes[:, :, c]], corners)
+            out[c] = blend(w, tables[c], corners)
     if prt.sh_order:
         basis = sh_basis(prt.directions.astype(np.float64), prt.sh_order)  # (K, C)
         out += np.einsum("nci,ki->cnk", decode_int8(prt.dq_codes, prt.dq_scale), basis)
@@ -65,12 +66,12 @@ def evaluate(prt: PrtData, omega: np.ndarray, vertices: np.ndarray | None = None
     index, beta = lookup_weights(ds, omega)  # (m, 3) directions and their weights
     out = np.zeros((3, m))
     if len(prt.ref_codes):
-        w = decode_weights(prt.weight_codes[vertices], prt.weight_scale)
+        w = decode_weights(prt.weight_codes[vertices], prt.weight_scale, prt.weight_bits)
         corners = prt.ref_triangles[prt.vertex_triangle[vertices]]
-        lut = prt.lut.astype(np.float64)
+        tables = reference_tables(prt.ref_codes, prt.lut, prt.ref_scale)
         for c in range(3):
             for r in range(3):
-                table = lut[c][prt.ref_codes[corners[:, r][:, None], index, c]]  # (m, 3 directions)
+                table = tables[c][corners[:, r][:, None], index]  # (m, 3 directions)
                 out[c] += w[:, r] * np.einsum("ma,ma->m", beta, table)
     if prt.sh_order:
         basis = sh_basis(omega / np.linalg.norm(omega, axis=1, keepdims=True), prt.sh_order)  # (m, C)
@@ -78,15 +79,37 @@ def evaluate(prt: PrtData, omega: np.ndarray, vertices: np.ndarray | None = None
     return out
 
 
+def reference_tables(ref_codes: np.ndarray, lut: np.ndarray, ref_scale: np.ndarray) -> np.ndarray:
+    """Reference tables at the set's directions as the runtime reads them: the LUT level of each
+    code, times the reference point's colour for shared tables.
+
+    Parameters
+    ----------
+    ref_codes : (R, K, C_t) uint8
+    lut : (3, 256) float32
+    ref_scale : (R, 3) float32 (C_t = 1) or (0, 3) (C_t = 3)
+
+    Returns
+    -------
+    (3, R, K) float64
+    """
+    levels = lut.astype(np.float64)
+    if ref_codes.shape[2] == 1:
+        colour = ref_scale.T.astype(np.float64)[:, :, None]
+        return np.stack([levels[c][ref_codes[:, :, 0]] for c in range(3)]) * colour
+    return np.stack([levels[c][ref_codes[:, :, c]] for c in range(3)])
+
+
 def bytes_per_vertex(prt: PrtData) -> dict[str, float]:
     """Every byte of the prt data per surface vertex as the glTF export stores it, tables amortised.
 
-    Per vertex: ``_SSS_PRT_REF`` 4 B (2 × uint16), ``_SSS_PRT_W`` 4 B (2 × int16), ``_SSS_PRT_DQ*``
-    3·C int8 codes padded to whole VEC4s. Tables (`prt_layout.prt_tables`; integer tables are
-    written as uint32, floats as float32), divided by n: reference codes R·K·3, reference
-    triangles, directions, hull triangles, inverses, lookup, neighbours, LUT and Δq scales. Render
-    vertices duplicated at seams repeat the per-vertex part; buffer-view alignment (< 4 B per
-    table) is left out.
+    Per vertex: ``_SSS_PRT_REF`` 4 B (4 × uint8 with 8-bit weights, else 2 × uint16),
+    ``_SSS_PRT_W`` 4 B (2 × int16; none with 8-bit weights), ``_SSS_PRT_DQ*`` 3·C int8 codes padded
+    to whole VEC4s. Tables (`prt_layout.prt_tables`; index tables as uint16 where they fit, else
+    uint32; floats as float32), divided by n: reference codes R·K·C_t, reference colours (shared
+    tables), reference triangles, directions, hull triangles, inverses, lookup, neighbours, LUT
+    and Δq scales. Render vertices duplicated at seams repeat the per-vertex part; buffer-view
+    alignment (< 4 B per table) is left out.
 
     Returns
     -------
@@ -94,16 +117,17 @@ def bytes_per_vertex(prt: PrtData) -> dict[str, float]:
         Block name -> bytes per vertex, plus ``per_vertex``, ``tables`` and ``total``.
     """
     n = max(prt.vertex_count, 1)
-    per_vertex = {"_SSS_PRT_REF": 4.0, "_SSS_PRT_W": 4.0,
+    per_vertex = {"_SSS_PRT_REF": 4.0, "_SSS_PRT_W": 0.0 if prt.weight_bits == 8 else 4.0,
                   "_SSS_PRT_DQ": 4.0 * -(-3 * prt.sh_order ** 2 // 4)}
     tables = {
         "refCodes": prt.ref_codes.size,
-        "refTriangles": 4 * prt.ref_triangles.size,
+        "refScale": 4 * prt.ref_scale.size,
+        "refTriangles": _index_bytes(prt.ref_triangles),
         "directions": 4 * prt.directions.size,
-        "directionTriangles": 4 * prt.direction_triangles.size,
+        "directionTriangles": _index_bytes(prt.direction_triangles),
         "directionInverse": 4 * prt.direction_inverse.size,
-        "directionLookup": 4 * prt.direction_lookup.size,
-        "directionNeighbours": 4 * prt.direction_neighbours.size,
+        "directionLookup": _index_bytes(prt.direction_lookup),
+        "directionNeighbours": _index_bytes(prt.direction_neighbours),
         "lut": 4 * prt.lut.size,
         "dqScale": 4 * prt.dq_scale.size,
     }
@@ -114,14 +138,25 @@ def bytes_per_vertex(prt: PrtData) -> dict[str, float]:
     return out
 
 
+def _index_bytes(values: np.ndarray) -> int:
+    """Bytes of an index table as written: uint16 where it fits, else uint32."""
+    return values.size * (2 if index_table(values).dtype == np.uint16 else 4)
+
+
 def decode_int8(codes: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """(n, 3, C) float64 values of int8 Δq codes: scale · code / 127."""
     return codes.astype(np.float64) / 127.0 * scale.astype(np.float64)
 
 
-def decode_weights(codes: np.ndarray, scale: float) -> np.ndarray:
-    """(n, 3) weights from (n, 2) int16 codes: w_0, w_1 = scale · code / 32767, w_2 = 1 - w_0 - w_1."""
-    w01 = codes.astype(np.float64) / 32767.0 * scale
+def weight_code_max(bits: int) -> int:
+    """The code of weight_scale for `bits`-bit weight codes: 2^(bits - 1) - 1."""
+    return (1 << (bits - 1)) - 1
+
+
+def decode_weights(codes: np.ndarray, scale: float, bits: int) -> np.ndarray:
+    """(n, 3) weights from (n, 2) codes: w_0, w_1 = scale · code / `weight_code_max` (bits),
+    w_2 = 1 - w_0 - w_1."""
+    w01 = codes.astype(np.float64) / weight_code_max(bits) * scale
     return np.column_stack([w01, 1.0 - w01.sum(axis=1)])
 
 

@@ -12,11 +12,22 @@ from .prt_data import PrtData
 TABLE_WIDTH = 4096
 
 
-def per_vertex_arrays(prt: PrtData) -> tuple[np.ndarray, np.ndarray]:
-    """``in_prt_ref`` (n, 2) uint16 and ``in_prt_w`` (n, 2) int16: the attributes as stored."""
+def per_vertex_arrays(prt: PrtData) -> list[tuple[np.ndarray, str, str]]:
+    """The per-vertex attributes as stored (`prt_layout`), as (array, moderngl format, shader
+    input): 8-bit weights ``in_prt_ref`` (n, 4) uint8; else ``in_prt_ref`` (n, 2) uint16 and
+    ``in_prt_w`` (n, 2) int16."""
     tri = prt.vertex_triangle.astype(np.int64)
+    if prt.weight_bits == 8:
+        packed = np.column_stack([tri % 256, tri // 256, prt.weight_codes.astype(np.int64) + 128]).astype(np.uint8)
+        return [(packed, "4u1", "in_prt_ref")]
     ref = np.column_stack([tri % 65536, tri // 65536]).astype(np.uint16)
-    return ref, prt.weight_codes.astype(np.int16)
+    return [(ref, "2u2", "in_prt_ref"), (prt.weight_codes.astype(np.int16), "2i2", "in_prt_w")]
+
+
+def shader_defines(prt: PrtData) -> str:
+    """The ``#define`` lines ``prt_decode.glsl`` needs for `prt`: its SH order (a variant per order,
+    see the shader) and PRT_COMPACT for 8-bit weights."""
+    return f"#define PRT_SH_ORDER {prt.sh_order}\n" + ("#define PRT_COMPACT\n" if prt.weight_bits == 8 else "")
 
 
 def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
@@ -28,7 +39,10 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
     c = prt.sh_order**2
     limit = ctx.info["GL_MAX_TEXTURE_SIZE"]
     tables = {
-        "u_prt_ref_codes": (_pad4(prt.ref_codes.reshape(-1, 3), np.uint8), "u1"),
+        # shared tables: one code per texel (R8UI); RGB: three (RGBA8UI)
+        "u_prt_ref_codes": (prt.ref_codes.reshape(-1, 1) if prt.ref_codes.shape[2] == 1
+                            else _pad4(prt.ref_codes.reshape(-1, 3), np.uint8), "u1"),
+        "u_prt_ref_scale": (_pad4(prt.ref_scale, np.float32), "f4"),
         "u_prt_ref_tris": (_pad4(prt.ref_triangles, np.int32), "i4"),
         "u_prt_lut": (_pad4(prt.lut.T, np.float32), "f4"),
         "u_prt_dir_tris": (_pad4(prt.direction_triangles, np.int32), "i4"),
@@ -54,6 +68,7 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
         "u_prt_dir_lookup": unit,
         "u_prt_k": k,
         "u_prt_refs": len(prt.ref_codes),
+        "u_prt_ref_channels": int(prt.ref_codes.shape[2]),
         "u_prt_order": prt.sh_order,
         "u_prt_weight_scale": float(prt.weight_scale),
         "u_prt_lookup_size": int(prt.direction_lookup.shape[0]),

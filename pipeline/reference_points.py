@@ -1,7 +1,7 @@
 """Reference points for prt compression (Hao & Varshney 2004 §4.2): a subset of the surface
 vertices from simplification, and for every vertex the simplified triangle it lies on with its
-barycentric weights there. Least-squares weights (beyond the paper) refit those weights to the
-signal itself.
+barycentric weights there. Beyond the paper: least-squares weights refit those weights to the
+signal itself, and refinement adds points where the signal is fitted worst.
 """
 
 from __future__ import annotations
@@ -18,6 +18,12 @@ from .simplify import Simplified, simplify
 INSIDE_EPS = 1e-6
 #: Simplified triangles (nearest by centroid) searched for a vertex outside all of its parent's.
 FALLBACK_CANDIDATES = 16
+#: Rounds of `refine_reference_points` (measured on the marble bunny from 1 % to 5 %: 4 rounds
+#: within 2.5 % of 6 in image RMSE).
+REFINE_ROUNDS = 4
+#: Defaults of the weight fits: ridge towards the prior weights relative to the normal matrix's
+#: mean diagonal, and the clip of w_0, w_1 (see `least_squares_weights`).
+REGULARISATION, LIMIT = 1e-3, 4.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -208,7 +214,7 @@ def closest_point_barycentrics(p: np.ndarray, tri: np.ndarray) -> tuple[np.ndarr
 
 
 def least_squares_weights(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints,
-                          regularisation: float = 1e-3, limit: float = 4.0) -> np.ndarray:
+                          regularisation: float = REGULARISATION, limit: float = LIMIT) -> np.ndarray:
     """Per vertex, weights summing to 1 that best reproduce its q from its triangle's references.
 
     Minimises Σ_c Σ_j (q - Σ_k w_k q_ref,k)² + λ ||w - w_bary||² over (w_0, w_1), w_2 = 1 - w_0 - w_1
@@ -246,7 +252,7 @@ def least_squares_weights(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoint
 
 
 def best_fit_triangles(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints,
-                       regularisation: float = 1e-3, limit: float = 4.0) -> ReferencePoints:
+                       regularisation: float = REGULARISATION, limit: float = LIMIT) -> ReferencePoints:
     """Move each vertex to the simplified triangle whose least-squares weights reproduce its q best.
 
     Candidates are the triangles sharing a corner with the vertex's geometric triangle (about 15);
@@ -307,6 +313,95 @@ def best_fit_triangles(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints,
         vertex_triangle[v[win]] = t[win]
         weights[v[win]] = np.column_stack([w01[win], 1.0 - w01[win].sum(axis=1)])
     return ReferencePoints(refs.ref_vertices, tri, vertex_triangle, weights)
+
+
+def refine_reference_points(positions: np.ndarray, refs: ReferencePoints, q: np.ndarray, count: int,
+                            rounds: int = REFINE_ROUNDS) -> ReferencePoints:
+    """Add reference points where the fit is worst, up to `count` (at most one per triangle and
+    round, so a count far above the start's may not be reached).
+
+    In each of `rounds` rounds: fit every vertex on its triangle (`least_squares_weights`, the
+    references' tables being their own q), sum the misfits of the vertices over the simplified
+    triangle they lie on, and in each of the worst triangles make its worst vertex a reference
+    point, splitting the triangle 1-to-3 at it; the vertices of a split triangle move to the
+    nearest of its three parts. The runtime reads the result like any other triangulation.
+    Measured with marble at 5 % reference points and shared tables, 40 % of them from
+    simplification and the rest in four rounds, against all 5 % from simplification: q rms error
+    15 % (bunny) and 10 % (dragon) lower, worst-view image RMSE 17 % and 19 % lower, at the same
+    bytes. Ranking by the best-fit misfit instead (`best_fit_triangles`) gains 5 % more on the
+    bunny at three times the compression time.
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+        Surface vertices.
+    refs : ReferencePoints
+        The starting points (`reference_points`).
+    q : (3, n, K) float64
+        The signal.
+    count : int
+        Reference points wanted (at most the vertices).
+    rounds : int
+
+    Returns
+    -------
+    ReferencePoints
+        The starting points plus the new ones (appended), the split triangulation, geometric
+        attachment (as `attach_vertices` gives, for `best_fit_triangles` to refit).
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    n = len(positions)
+    for done in range(rounds):
+        need = min(count, n) - len(refs.ref_vertices)
+        if need <= 0:
+            break
+        misfit = _fit(q, q[:, refs.ref_vertices], np.arange(n), refs.triangles[refs.vertex_triangle],
+                      refs.weights[:, :2], REGULARISATION, LIMIT)[1]
+        misfit[_is_reference(refs)] = 0.0  # a reference point reproduces itself
+        refs = _split_worst(positions, refs, misfit, -(-need // (rounds - done)))
+    return refs
+
+
+def _split_worst(positions: np.ndarray, refs: ReferencePoints, misfit: np.ndarray, m: int) -> ReferencePoints:
+    """Make the worst vertex of each of the `m` triangles with the most misfit a reference point."""
+    n = len(positions)
+    home = refs.vertex_triangle
+    is_ref = np.zeros(n, dtype=bool)
+    is_ref[refs.ref_vertices] = True
+    # Per triangle, its worst non-reference vertex.
+    order = np.lexsort((-misfit, home))
+    order = order[~is_ref[order]]
+    worst = order[np.concatenate([[True], np.diff(home[order]) != 0])] if len(order) else order
+    total = np.bincount(home, misfit, minlength=len(refs.triangles))
+    chosen = worst[np.argsort(-total[home[worst]], kind="stable")[:m]]
+    split = home[chosen]
+    r, f, k = len(refs.ref_vertices), len(refs.triangles), len(chosen)
+    new = r + np.arange(k)
+    a, b, c = refs.triangles[split].T
+    triangles = np.concatenate([refs.triangles, np.column_stack([b, c, new]), np.column_stack([c, a, new])])
+    triangles[split] = np.column_stack([a, b, new])
+    ref_vertices = np.concatenate([refs.ref_vertices, chosen])
+
+    # The vertices of a split triangle go to the nearest of its three parts.
+    part = np.full(f, -1)
+    part[split] = np.arange(k)
+    moved = np.flatnonzero(part[home] >= 0)
+    j = part[home[moved]]
+    candidates = np.column_stack([split[j], f + j, f + k + j])  # (moved, 3)
+    corners = positions[ref_vertices[triangles[candidates]]]  # (moved, 3 parts, 3 corners, 3)
+    bary, distance, _ = closest_point_barycentrics(np.repeat(positions[moved], 3, axis=0), corners.reshape(-1, 3, 3))
+    pick = distance.reshape(-1, 3).argmin(axis=1)
+    # A reference point stays on a part it is a corner of (others may be as near within rounding).
+    corner = (ref_vertices[triangles[candidates]] == moved[:, None, None]).any(axis=2)
+    pick = np.where(corner.any(axis=1), corner.argmax(axis=1), pick)
+    vertex_triangle = home.copy()
+    weights = refs.weights.copy()
+    vertex_triangle[moved] = candidates[np.arange(len(moved)), pick]
+    weights[moved] = bary.reshape(-1, 3, 3)[np.arange(len(moved)), pick]
+    own = ref_vertices[triangles[vertex_triangle]] == np.arange(n)[:, None]
+    mine = own.any(axis=1)
+    weights[mine] = own[mine].astype(np.float64)
+    return ReferencePoints(ref_vertices, triangles, vertex_triangle, weights)
 
 
 def _check_signals(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .prt_data import PrtData
-from .prt_runtime import TABLE_WIDTH, per_vertex_arrays, upload
+from .prt_runtime import TABLE_WIDTH, per_vertex_arrays, shader_defines, upload
 from .sh import MAX_ORDER as SH_MAX_ORDER
 from .shaders import DIALECTS, shader_source
 
@@ -249,12 +249,11 @@ class Renderer:
         return draws
 
     def _draw(self, kind, item, camera, light, specular, shininess, diffuse) -> _Draw:
-        # one prt variant per SH order (see prt_decode.glsl)
-        program = self._program(kind, f"#define PRT_SH_ORDER {item['prt'].sh_order}\n" if kind == "prt" else "")
+        # one prt variant per SH order and weight layout (see prt_decode.glsl)
+        program = self._program(kind, shader_defines(item["prt"]) if kind == "prt" else "")
         textures, extra = [], []
         if kind == "prt":
-            ref, w = per_vertex_arrays(item["prt"])
-            extra = [(ref, "2u2", "in_prt_ref"), (w, "2i2", "in_prt_w")]
+            extra = per_vertex_arrays(item["prt"])
             # `upload` also sets this item's prt uniforms, which `_Draw` snapshots below.
             textures = upload(self.ctx, program, item["prt"], width=self.table_width)
         elif kind == "q":

@@ -22,9 +22,10 @@ from ..exporters.atomic import atomic_path
 from .clean import clean_scene
 from .dipole import DipoleParams
 from .directions import direction_set, interpolation_weights
+from .image_metrics import rmse
 from .load import load_scene
 from .materials import Material
-from .prt_compress import WEIGHTS, PrtCompressOptions, bytes_per_vertex, compress_prt, evaluate
+from .prt_compress import PRT_COMPRESS_DEFAULTS, WEIGHTS, PrtCompressOptions, bytes_per_vertex, compress_prt, evaluate
 from .prt_precompute import irradiance_signal
 from .scatter_operator import SCATTER_DEFAULTS, scatter_operator
 from .verify import PLAIN_ALBEDO
@@ -32,7 +33,7 @@ from .visibility import direction_visibility
 
 KS = (25, 50, 100, 200, 400)
 ORDERS = (1, 2, 3, 4, 5, 6, 7, 8)
-REFERENCE_FRACTIONS = (0.0025, 0.005, 0.01, 0.02, 0.04)
+REFERENCE_FRACTIONS = (0.0025, 0.005, 0.01, 0.02, 0.05)
 
 
 def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material, out_dir: str | os.PathLike,
@@ -44,7 +45,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     -------
     dict
         ``rows`` (one per configuration: ``sweep``, ``mode``, ``k``, ``sh_order``,
-        ``reference_fraction``, ``weights``, ``bytes_per_vertex``, ``seconds``, ``rmse_image``),
+        ``reference_fraction``, ``weights``, ``tables``, ``refine``, ``bytes_per_vertex``, ``seconds``, ``rmse_image``),
         ``frame_ms_sss``, ``frame_ms_plain``, ``frame_ratio``, ``vertices``, ``outputs``.
     """
     from .render import Renderer, RenderLight, fit_camera
@@ -54,7 +55,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     surface = max(clean.surfaces, key=lambda s: len(s.positions))
     x_mm = surface.positions * mm_per_unit
     t = time.perf_counter()
-    operator = scatter_operator(x_mm, surface.vertex_areas * mm_per_unit**2, DipoleParams.from_material(material),
+    operator = scatter_operator(x_mm, surface.faces, surface.normals, DipoleParams.from_material(material),
                                 SCATTER_DEFAULTS)
     operator_seconds = time.perf_counter() - t
 
@@ -73,16 +74,13 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
                 eta=material.eta)
 
     def images(q_per_light: list[np.ndarray]) -> list[np.ndarray]:
-        return [renderer.render([{**base, "q": q.T}], camera, RenderLight(False, tuple(test[j]), 1.0))[0]
-                for j, q in enumerate(q_per_light)]
+        return [image for image, _ in lit_images(renderer, camera, base, test, q_per_light)]
 
     reference_images = images([exact[:, :, j] for j in range(lights)])
-    exposure = 1.0 / max(max(float(np.percentile(im.max(axis=-1), 99.5)) for im in reference_images), 1e-300)
+    exposure = image_exposure(reference_images)
 
     def rmse_against(reference: list[np.ndarray], q_per_light: list[np.ndarray]) -> float:
-        # The paper's metric: image RMSE on [0, 1] values, the worst over the test views.
-        return max(float(np.sqrt(np.mean((np.clip(a * exposure, 0, 1) - np.clip(b * exposure, 0, 1)) ** 2)))
-                   for a, b in zip(images(q_per_light), reference))
+        return worst_rmse(images(q_per_light), reference, exposure)
 
     rows = []
     uncompressed = None
@@ -95,7 +93,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
         interpolated = [np.einsum("cna,a->cn", q[:, :, index[j]], weights[j]) for j in range(lights)]
         if kk in ks:
             rows.append({"sweep": "directions", "mode": "float", "k": kk, "sh_order": 0, "reference_fraction": 1.0,
-                         "weights": "", "bytes_per_vertex": 12.0 * kk, "seconds": seconds,
+                         "weights": "", "tables": "", "refine": 0.0, "bytes_per_vertex": 12.0 * kk, "seconds": seconds,
                          "rmse_image": rmse_against(reference_images, interpolated)})
         if kk == k:
             uncompressed = (ds, q, seconds, images(interpolated))
@@ -105,6 +103,8 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     configs += [("sh", PrtCompressOptions(mode="sh", sh_order=n)) for n in orders]
     configs += [("reference_points", PrtCompressOptions(reference_fraction=f, sh_order=n, weights=w))
                 for f in reference_fractions for n in (0, 2, 3) for w in WEIGHTS]
+    configs += [("reference_points", PrtCompressOptions(reference_fraction=f, **change))
+                for f in reference_fractions for change in ({"tables": "rgb"}, {"refine": 0.0})]
     default_prt = None
     for sweep, options in configs:
         t = time.perf_counter()
@@ -114,6 +114,8 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
         rows.append({"sweep": sweep, "mode": options.mode, "k": k, "sh_order": prt.sh_order,
                      "reference_fraction": options.reference_fraction if options.mode == "refs+sh" else 0.0,
                      "weights": options.weights if options.mode == "refs+sh" else "",
+                     "tables": options.tables if options.mode == "refs+sh" else "",
+                     "refine": options.refine if options.mode == "refs+sh" else 0.0,
                      "bytes_per_vertex": bytes_per_vertex(prt)["total"], "seconds": seconds,
                      "rmse_image": rmse_against(target, decoded)})
         if options == PrtCompressOptions():
@@ -134,6 +136,45 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
               "outputs": {"json": f"{stem}.json", "csv": f"{stem}.csv", "plot": f"{stem}.png"}}
     _write(result, stem)
     return result
+
+
+def lit_images(renderer, camera, base: dict, lights: np.ndarray,
+               q_per_light: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Render one surface under each directional light with its per-vertex scattered radiance.
+
+    Parameters
+    ----------
+    renderer : render.Renderer
+    camera : render.Camera
+    base : dict
+        A render item without its radiance (``positions``, ``normals``, ``faces``, ``model``, ``eta``).
+    lights : (m, 3) float64
+        Unit directions towards the lights, irradiance 1.
+    q_per_light : list of m (3, n) float64
+        q at the vertices for each light.
+
+    Returns
+    -------
+    list of m (image (H, W, 3) float32, coverage (H, W) bool)
+    """
+    from .render import RenderLight
+
+    return [renderer.render([{**base, "q": q.T}], camera, RenderLight(False, tuple(lights[j]), 1.0))
+            for j, q in enumerate(q_per_light)]
+
+
+def image_exposure(reference: list[np.ndarray]) -> float:
+    """One exposure for a set of views: the brightest view's 99.5th-percentile pixel (brightest
+    channel, all pixels) maps to 1."""
+    return 1.0 / max(max(float(np.percentile(im.max(axis=-1), 99.5)) for im in reference), 1e-300)
+
+
+def worst_rmse(images: list[np.ndarray], reference: list[np.ndarray], exposure: float,
+               masks: list[np.ndarray] | None = None) -> float:
+    """The paper's metric, image RMSE on [0, 1] values, the worst over the views: over whole images,
+    or over the (H, W) bool `masks` (e.g. the object's pixels) when given."""
+    masks = masks if masks is not None else [None] * len(images)
+    return max(rmse(a, b, exposure, m) for a, b, m in zip(images, reference, masks))
 
 
 def _write(result: dict, stem: Path) -> None:
@@ -159,9 +200,14 @@ def _plot(rows: list[dict], path: str) -> None:
     axes[0].set(xlabel="light directions K", ylabel="image RMSE", title="interpolation over directions (cf. Fig. 5)")
     for n in (0, 2, 3):
         for w, style in (("barycentric", "o-"), ("least_squares", "s--"), ("best_fit", "d:")):
-            sel = [r for r in rows if r["sweep"] == "reference_points" and r["sh_order"] == n and r["weights"] == w]
+            sel = [r for r in rows if r["sweep"] == "reference_points" and r["sh_order"] == n and r["weights"] == w
+                   and r["tables"] == "shared" and r["refine"] == PRT_COMPRESS_DEFAULTS.refine]
             axes[1].plot([r["reference_fraction"] for r in sel], [r["rmse_image"] for r in sel], style,
                          label=f"SH n={n}, {w}")
+    for label, pick, style in (("RGB tables", lambda r: r["tables"] == "rgb", "x-"),
+                               ("no refinement", lambda r: r["refine"] == 0.0, "+-")):
+        sel = [r for r in rows if r["sweep"] == "reference_points" and pick(r)]
+        axes[1].plot([r["reference_fraction"] for r in sel], [r["rmse_image"] for r in sel], style, label=label)
     axes[1].set(xscale="log", xlabel="reference points / vertices", ylabel="image RMSE",
                 title="reference points + SH (cf. Fig. 9)")
     axes[1].legend(fontsize=8)

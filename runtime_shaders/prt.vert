@@ -5,8 +5,7 @@
 
 in vec3 in_position;
 in vec3 in_normal;
-in uvec2 in_prt_ref;           // _SSS_PRT_REF: vertex_triangle = x + 65536 y
-in ivec2 in_prt_w;             // _SSS_PRT_W: w0, w1 codes
+// (the per-vertex prt attributes are declared in prt_decode.glsl)
 uniform mat4 u_model;          // object -> world
 uniform mat3 u_normal_matrix;  // inverse transpose of u_model's linear part
 uniform mat3 u_world_to_object;// inverse of u_model's linear part: q is tabulated in object space
@@ -26,7 +25,7 @@ void main() {
     v_light = sss_light(u_point_light, u_light, u_intensity, u_mm_per_unit, world.xyz, v_irradiance);
     vec3 l_object = sss_normalize(u_world_to_object * v_light);
     // Negative q is compression error, not light.
-    v_q = v_irradiance * max(prt_decode(gl_VertexID, in_prt_ref, in_prt_w, l_object), vec3(0.0));
+    v_q = v_irradiance * max(prt_decode(gl_VertexID, l_object), vec3(0.0));
     v_normal = u_normal_matrix * in_normal;
     v_position = world.xyz;
     gl_Position = u_view_projection * world;

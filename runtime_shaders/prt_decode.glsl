@@ -1,11 +1,22 @@
 // Decoding of the prt data (Hao & Varshney 2004) exactly as pipeline/prt_data.py states it:
 //   q_c(w) = sum_k w_k T_c[r_k](w) + sum_i dq_c,i y_i(w)
 // Tables are 2-D textures holding a linear index i at texel (i % width, i / width)
-// (pipeline/prt_runtime.py `upload` makes them).
+// (pipeline/prt_runtime.py `upload` makes them). Define PRT_COMPACT for data with 8-bit weights
+// (pipeline/prt_layout.py: one VEC4 uint8 attribute instead of two).
 #include "sh_basis.glsl"
+
+#ifdef PRT_COMPACT
+in uvec4 in_prt_ref;  // _SSS_PRT_REF: triangle = x + 256 y; weight codes = (z, w) - 128
+const float PRT_WEIGHT_MAX = 127.0;
+#else
+in uvec2 in_prt_ref;  // _SSS_PRT_REF: triangle = x + 65536 y
+in ivec2 in_prt_w;    // _SSS_PRT_W: weight codes
+const float PRT_WEIGHT_MAX = 32767.0;
+#endif
 
 uniform int u_prt_k;                 // directions K
 uniform int u_prt_refs;              // reference points R (0: none)
+uniform int u_prt_ref_channels;      // 3: RGB tables; 1: one shape per point (levels per channel) times its colour
 // SH order of dq (0: none). Defining PRT_SH_ORDER compiles a variant for one order: constant
 // loop bounds let the compiler unroll the SH terms and keep them in registers (~25 % faster here).
 #ifdef PRT_SH_ORDER
@@ -18,7 +29,8 @@ uniform float u_prt_weight_scale;
 uniform int u_prt_lookup_size;
 uniform float u_prt_dq_scale[3 * SH_MAX_ORDER * SH_MAX_ORDER];  // [c * C + i]
 
-uniform usampler2D u_prt_ref_codes;   // RGBA8UI: (r * K + a) -> codes of the 3 channels
+uniform usampler2D u_prt_ref_codes;   // RGBA8UI / R8UI: (r * K + a) -> codes of the 3 channels / the shape
+uniform sampler2D u_prt_ref_scale;    // RGBA32F: r -> colour of point r's shape (shared tables)
 uniform isampler2D u_prt_ref_tris;    // RGBA32I: triangle -> its 3 reference points
 uniform sampler2D u_prt_lut;          // RGBA32F 256 x 1: level -> RGB value
 uniform isampler2D u_prt_dir_tris;    // RGBA32I: hull triangle -> its 3 directions
@@ -82,25 +94,47 @@ void prt_direction_weights(vec3 w, out ivec3 dirs, out vec3 beta) {
     dirs = prt_fetch_i(u_prt_dir_tris, t).xyz;
 }
 
-// Scattered radiance per unit irradiance (RGB) of vertex `vertex` lit from unit direction w.
-// ref: vertex_triangle as (low, high) 16-bit halves; weight_codes: w0, w1 as snorm16 codes.
-vec3 prt_decode(int vertex, uvec2 ref, ivec2 weight_codes, vec3 w) {
+// This vertex's reference triangle and weight codes, from its attributes.
+void prt_vertex_reference(out int triangle, out vec2 codes) {
+#ifdef PRT_COMPACT
+    triangle = int(in_prt_ref.x) + 256 * int(in_prt_ref.y);
+    codes = vec2(in_prt_ref.zw) - 128.0;
+#else
+    triangle = int(in_prt_ref.x) + 65536 * int(in_prt_ref.y);
+    codes = vec2(in_prt_w);
+#endif
+}
+
+// Scattered radiance per unit irradiance (RGB) of the current vertex, number `vertex`, lit from
+// unit direction w.
+vec3 prt_decode(int vertex, vec3 w) {
     vec3 q = vec3(0.0);
     if (u_prt_refs > 0) {
         ivec3 dirs;
         vec3 beta;
         prt_direction_weights(w, dirs, beta);
-        vec2 w01 = vec2(weight_codes) / 32767.0 * u_prt_weight_scale;
+        int triangle;
+        vec2 codes;
+        prt_vertex_reference(triangle, codes);
+        vec2 w01 = codes / PRT_WEIGHT_MAX * u_prt_weight_scale;
         vec3 weights = vec3(w01, 1.0 - w01.x - w01.y);
-        ivec3 refs = prt_fetch_i(u_prt_ref_tris, int(ref.x) + 65536 * int(ref.y)).xyz;
+        ivec3 refs = prt_fetch_i(u_prt_ref_tris, triangle).xyz;
         for (int k = 0; k < 3; ++k) {
             vec3 table = vec3(0.0);
-            for (int a = 0; a < 3; ++a) {
-                ivec3 code = ivec3(prt_fetch_u(u_prt_ref_codes, refs[k] * u_prt_k + dirs[a]).rgb);
-                // the LUT is one row of 256 texels
-                table += beta[a] * vec3(texelFetch(u_prt_lut, ivec2(code.r, 0), 0).r,
-                                        texelFetch(u_prt_lut, ivec2(code.g, 0), 0).g,
-                                        texelFetch(u_prt_lut, ivec2(code.b, 0), 0).b);
+            // the LUT is one row of 256 texels
+            if (u_prt_ref_channels == 1) {  // one code, a level per channel
+                for (int a = 0; a < 3; ++a) {
+                    int code = int(prt_fetch_u(u_prt_ref_codes, refs[k] * u_prt_k + dirs[a]).r);
+                    table += beta[a] * texelFetch(u_prt_lut, ivec2(code, 0), 0).rgb;
+                }
+                table *= prt_fetch_f(u_prt_ref_scale, refs[k]).rgb;
+            } else {
+                for (int a = 0; a < 3; ++a) {
+                    ivec3 code = ivec3(prt_fetch_u(u_prt_ref_codes, refs[k] * u_prt_k + dirs[a]).rgb);
+                    table += beta[a] * vec3(texelFetch(u_prt_lut, ivec2(code.r, 0), 0).r,
+                                            texelFetch(u_prt_lut, ivec2(code.g, 0), 0).g,
+                                            texelFetch(u_prt_lut, ivec2(code.b, 0), 0).b);
+                }
             }
             q += weights[k] * table;
         }

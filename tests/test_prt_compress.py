@@ -1,6 +1,8 @@
 """prt compression and decoding: error falls with bytes spent, the baseline is the Lloyd tables,
 the runtime's interpolation path, and the byte count."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import trimesh
@@ -56,6 +58,9 @@ def test_error_falls_with_reference_points_and_sh_order(torus):
         reference_count=60, sh_order=0, weights="barycentric")
     assert run(reference_count=60, sh_order=0, weights="best_fit") < run(
         reference_count=60, sh_order=0, weights="least_squares")
+    # placing part of them where the fit is worst beats simplification alone at the same count (on
+    # this uniform torus barely; see test_reference_points for a signal with a hard corner)
+    assert run(reference_count=60, refine=0.6) < run(reference_count=60, refine=0.0)
 
 
 def test_lloyd_mode_is_the_nearest_level_of_each_value(torus):
@@ -68,6 +73,35 @@ def test_lloyd_mode_is_the_nearest_level_of_each_value(torus):
         nearest = lut[np.abs(q[c][..., None] - lut).argmin(axis=-1)]
         np.testing.assert_allclose(np.abs(decoded[c] - q[c]), np.abs(nearest - q[c]), atol=1e-12)
     assert np.sqrt(np.mean((decoded - q) ** 2)) < 2e-3 * q.max()
+
+
+def test_shared_tables_fit_at_least_as_well_as_the_best_rank_one_table(torus):
+    v, f, ds, q = torus
+    rng = np.random.default_rng(2)
+    # channels proportional per vertex (colour × shape): shared tables lose only the Lloyd step
+    separable = q[1:2] * rng.uniform(0.5, 1.5, (3, len(v), 1))
+    # channels whose shapes differ: one a power of another (a wider or narrower lobe), or leaning
+    powered = q[1:2] ** np.array([0.8, 1.0, 1.25])[:, None, None]
+    mixed = q * (1.0 + 0.2 * np.arange(3)[:, None, None] * ds.directions[None, None, :, 2])
+    options = PrtCompressOptions(reference_fraction=1.0, refine=0.0)
+    errors = {}
+    for name, signal in (("separable", separable), ("powered", powered), ("mixed", mixed)):
+        shared = compress_prt(signal, ds, v, f, 1.3, options)
+        assert shared.ref_codes.shape == (len(v), 48, 1) and shared.ref_scale.shape == (len(v), 3)
+        error = decode_at_directions(shared) - signal
+        # least-squares colours: in every channel the error is orthogonal to that channel's shape
+        shape = shared.lut.astype(np.float64)[:, shared.ref_codes[:, :, 0]]  # (3, n, K)
+        np.testing.assert_allclose(np.einsum("cnk,cnk->cn", error, shape), 0.0, atol=1e-5 * signal.max() ** 2)
+        rank_one = np.linalg.svd(np.transpose(signal, (1, 0, 2)), compute_uv=False)[:, 1:]
+        floor = np.sqrt((rank_one**2).sum() / signal.size)  # the best one table times a colour
+        rms = np.sqrt(np.mean(error**2))
+        assert rms < floor + 2e-3 * signal.max(), (floor, rms)
+        errors[name] = (floor / signal.max(), rms / signal.max())
+    # per-channel levels of one code follow a monotone change of shape, which no rank-one table can
+    floor, rms = errors["powered"]
+    assert floor > 1e-2 and rms < 0.2 * floor, errors
+    rgb = compress_prt(separable, ds, v, f, 1.3, replace(options, tables="rgb"))
+    assert rgb.ref_codes.shape[2] == 3 and len(rgb.ref_scale) == 0
 
 
 def test_sh_codes_are_within_half_a_code_of_the_residual(torus):
@@ -121,19 +155,56 @@ def test_bytes_per_vertex_matches_a_hand_count(torus):
     n, k, r, fr = len(v), 48, len(prt.ref_codes), len(prt.ref_triangles)
     t = 2 * k - 4
     b = bytes_per_vertex(prt)
-    assert (b["_SSS_PRT_REF"], b["_SSS_PRT_W"], b["_SSS_PRT_DQ"]) == (4, 4, 28)  # 27 codes -> 7 VEC4 snorm8
-    tables = (r * k * 3          # reference codes, uint8
-              + fr * 3 * 4       # reference triangles, uint32
+    # 8-bit weights share _SSS_PRT_REF with the triangle; 27 codes -> 7 VEC4 snorm8
+    assert prt.weight_bits == 8 and (b["_SSS_PRT_REF"], b["_SSS_PRT_W"], b["_SSS_PRT_DQ"]) == (4, 0, 28)
+    tables = (r * k              # shared reference codes, uint8
+              + r * 3 * 4        # their colours, float32
+              + fr * 3 * 2       # reference triangles, uint16
               + k * 3 * 4        # directions, float32
-              + t * 3 * 4 * 2    # hull triangles and neighbours, uint32
+              + t * 3 * 2 * 2    # hull triangles and neighbours, uint16
               + t * 9 * 4        # inverses, float32
-              + 16 * 16 * 4      # lookup, uint32
-              + 3 * 256 * 4      # LUT, float32
+              + 16 * 16 * 2      # lookup, uint16
+              + 3 * 256 * 4      # levels per channel, float32
               + 3 * 9 * 4)       # Δq scales, float32
-    assert b["total"] == pytest.approx(36 + tables / n)
-    assert b["refCodes"] == pytest.approx(r * k * 3 / n)
+    assert b["total"] == pytest.approx(32 + tables / n)
+    assert b["refCodes"] == pytest.approx(r * k / n)
+    rgb = bytes_per_vertex(compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_count=40, sh_order=3,
+                                                                             tables="rgb", weight_bits=16)))
+    assert rgb["refCodes"] == pytest.approx(r * k * 3 / n) and rgb["refScale"] == 0 and rgb["_SSS_PRT_W"] == 4
+    assert rgb["lut"] == pytest.approx(3 * 256 * 4 / n)
     sh_only = bytes_per_vertex(compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="sh", sh_order=1)))
     assert sh_only["_SSS_PRT_DQ"] == 4 and sh_only["refCodes"] == 0 and sh_only["refTriangles"] == 0
+
+
+def test_weights_take_16_bits_beyond_65536_reference_triangles():
+    # the uncompressed baseline has a reference triangle per vertex
+    g = np.arange(257.0)
+    v = np.column_stack([np.repeat(g, 257), np.tile(g, 257), np.zeros(257 * 257)])
+    idx = np.arange(len(v)).reshape(257, 257)
+    f = np.column_stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel()])
+    ds = direction_set(12, lookup_size=8)
+    q = np.random.default_rng(0).integers(1, 5, (3, len(v), 12)) / 4.0  # few levels: a quick Lloyd fit
+    big = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="lloyd"))
+    assert len(big.ref_triangles) > 65536 and big.weight_bits == 16
+    assert bytes_per_vertex(big)["_SSS_PRT_W"] == 4
+    np.testing.assert_allclose(decode_at_directions(big), q)
+    small = compress_prt(q[:, :65536], ds, v[:65536], f[f.max(axis=1) < 65536], 1.3, PrtCompressOptions(mode="lloyd"))
+    assert small.weight_bits == 8 and small.vertex_triangle.max() == 65535
+    np.testing.assert_allclose(decode_at_directions(small), q[:, :65536])
+
+
+def test_a_byte_budget_sets_the_reference_count(torus):
+    v, f, ds, q = torus
+    for budget, order in ((40.0, 0), (60.0, 2)):
+        prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=budget, sh_order=order))
+        total = bytes_per_vertex(prt)["total"]
+        # one more point would not fit (a point: 48 codes, a colour, two uint16 triangles)
+        assert budget - (48 + 12 + 12) / len(v) < total <= budget, (budget, total)
+    small = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=20.0))
+    assert len(small.ref_codes) < len(prt.ref_codes)
+    # 640 vertices: the fixed direction tables alone cost ~19 B/vertex
+    with pytest.raises(ValueError, match="give at least"):
+        compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=15.0))
 
 
 def test_degenerate_signals_stay_finite(torus):

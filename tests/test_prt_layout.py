@@ -14,13 +14,16 @@ from sssbake.exporters.gltf_validator import validate_glb
 from sssbake.exporters.read_prt import PrtReadError, read_prt_glb, read_prt_usd
 from sssbake.exporters.usd import write_usdc
 from sssbake.pipeline.prt_data import PrtData
-from sssbake.pipeline.prt_layout import dq_attribute_count, prt_tables, prt_vertex_attributes
+from sssbake.pipeline.prt_layout import dq_attribute_count, index_table, prt_tables, prt_vertex_attributes
 from test_gltf import icosphere_asset
 
 
-def random_prt(n: int, k: int = 14, refs: int = 9, order: int = 3, seed: int = 0) -> PrtData:
-    """Codes and tables of the right dtypes and shapes with random contents (decode is not the point)."""
+def random_prt(n: int, k: int = 14, refs: int = 9, order: int = 3, seed: int = 0, channels: int = 3,
+               weight_bits: int = 16) -> PrtData:
+    """Codes and tables of the right dtypes and shapes with random contents (decode is not the point);
+    RGB (`channels` 3) or shared (1) reference tables, 16- or 8-bit weights."""
     rng = np.random.default_rng(seed)
+    top = (1 << (weight_bits - 1)) - 1
     c = order * order
     return PrtData(
         directions=rng.normal(size=(k, 3)).astype(np.float32),
@@ -30,12 +33,14 @@ def random_prt(n: int, k: int = 14, refs: int = 9, order: int = 3, seed: int = 0
         direction_neighbours=rng.integers(0, 2 * k - 4, (2 * k - 4, 3)).astype(np.int32),
         lut=np.sort(rng.random((3, 256)), axis=1).astype(np.float32),
         ref_vertices=np.arange(refs, dtype=np.int64),
-        ref_codes=rng.integers(0, 256, (refs, k, 3)).astype(np.uint8),
+        ref_codes=rng.integers(0, 256, (refs, k, channels)).astype(np.uint8),
+        ref_scale=rng.random((refs if channels == 1 else 0, 3)).astype(np.float32),
         ref_triangles=rng.integers(0, max(refs, 1), (max(2 * refs - 4, 1) if refs else 0, 3)).astype(np.int32),
-        # beyond 16 bits on purpose: the index is split into lo and hi
-        vertex_triangle=rng.integers(0, 70000, n).astype(np.int32),
-        weight_codes=rng.integers(-32767, 32768, (n, 2)).astype(np.int16),
+        # beyond 16 bits on purpose: the index is split into lo and hi (8 and 8 bits with 8-bit weights)
+        vertex_triangle=rng.integers(0, 70000 if weight_bits == 16 else 65536, n).astype(np.int32),
+        weight_codes=rng.integers(-top, top + 1, (n, 2)).astype(np.int16),
         weight_scale=1.5,
+        weight_bits=weight_bits,
         dq_codes=rng.integers(-127, 128, (n, 3, c)).astype(np.int8),
         dq_scale=rng.random((3, c)).astype(np.float32),
         sh_order=order,
@@ -53,17 +58,18 @@ def prt_asset(prt: PrtData):
 
 def assert_same(a: PrtData, b: PrtData) -> None:
     for field in ("directions", "direction_triangles", "direction_inverse", "direction_lookup", "direction_neighbours", "lut", "ref_codes",
-                  "ref_triangles", "vertex_triangle", "weight_codes", "dq_codes", "dq_scale"):
+                  "ref_scale", "ref_triangles", "vertex_triangle", "weight_codes", "dq_codes", "dq_scale"):
         x, y = getattr(a, field), getattr(b, field)
         assert x.dtype == y.dtype and x.shape == y.shape, field
         np.testing.assert_array_equal(x, y, err_msg=field)
-    assert (a.weight_scale, a.sh_order, a.eta) == (b.weight_scale, b.sh_order, b.eta)
+    assert (a.weight_scale, a.weight_bits, a.sh_order, a.eta) == (b.weight_scale, b.weight_bits, b.sh_order, b.eta)
 
 
-@pytest.mark.parametrize("refs, order", [(9, 3), (0, 8), (5, 0)])
-def test_glb_and_usd_round_trip_exactly(tmp_path, refs, order):
+@pytest.mark.parametrize("refs, order, channels, bits", [(9, 3, 3, 16), (0, 8, 3, 16), (5, 0, 3, 16), (7, 2, 1, 8),
+                                                        (6, 0, 1, 8)])
+def test_glb_and_usd_round_trip_exactly(tmp_path, refs, order, channels, bits):
     n = len(icosphere_asset().scene.meshes[0].primitives[0].positions)
-    prt = random_prt(n, refs=refs, order=order)
+    prt = random_prt(n, refs=refs, order=order, channels=channels, weight_bits=bits)
     asset = prt_asset(prt)
     write_glb(asset, tmp_path / "a.glb")
     write_usdc(asset, tmp_path / "a.usdc")
@@ -73,10 +79,23 @@ def test_glb_and_usd_round_trip_exactly(tmp_path, refs, order):
 
 def test_layout_is_valid_gltf_and_counts_attributes(tmp_path):
     n = len(icosphere_asset().scene.meshes[0].primitives[0].positions)
-    write_glb(prt_asset(random_prt(n)), tmp_path / "a.glb")
-    report = validate_glb(tmp_path / "a.glb")
-    assert (report.num_errors, report.num_warnings) == (0, 0), report.to_json()
+    for bits, ref_type, weights in ((16, ("VEC2", 5123), True), (8, ("VEC4", 5121), False)):
+        write_glb(prt_asset(random_prt(n, weight_bits=bits)), tmp_path / "a.glb")
+        report = validate_glb(tmp_path / "a.glb")
+        assert (report.num_errors, report.num_warnings) == (0, 0), report.to_json()
+        gltf = pygltflib.GLTF2.load(tmp_path / "a.glb")
+        attributes = gltf.meshes[0].primitives[0].attributes
+        ref = gltf.accessors[attributes._SSS_PRT_REF]
+        assert (ref.type, ref.componentType) == ref_type and not ref.normalized
+        assert (getattr(attributes, "_SSS_PRT_W", None) is not None) == weights
+    # 8-bit weights leave 16 bits for the triangle
+    with pytest.raises(ValueError, match="weight_bits=16"):
+        prt_vertex_attributes(replace(random_prt(n, weight_bits=8), vertex_triangle=np.full(n, 65536, np.int32)),
+                              np.arange(n))
     assert [dq_attribute_count(o) for o in (0, 1, 2, 3, 8)] == [0, 1, 3, 7, 48]
+    # index tables: 16 bits while every index fits, else 32 (written as UNSIGNED_INT)
+    assert index_table(np.array([[0, 65535]])).dtype == np.uint16
+    assert index_table(np.array([[0, 65536]])).dtype == np.int64
 
 
 def test_files_without_prt_say_how_to_get_it(tmp_path):
@@ -88,10 +107,15 @@ def test_files_without_prt_say_how_to_get_it(tmp_path):
 def test_prt_extras_match_the_documented_schema():
     schema = json.loads(resources.files("sssbake.exporters").joinpath("schema/sssbake.schema.json").read_text())
     n = len(icosphere_asset().scene.meshes[0].primitives[0].positions)
-    gltf = pygltflib.GLTF2.load_from_bytes(to_glb(prt_asset(random_prt(n)))[0])
-    mesh = gltf.meshes[0].extras["sssbake"]
     sub = {"$schema": schema["$schema"], "$defs": schema["$defs"]}
-    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(mesh)
+    for channels, bits in ((1, 8), (3, 16)):
+        prt = random_prt(n, channels=channels, weight_bits=bits)
+        gltf = pygltflib.GLTF2.load_from_bytes(to_glb(prt_asset(prt))[0])
+        mesh = gltf.meshes[0].extras["sssbake"]
+        jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(mesh)
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(
+            {**mesh, "prt": {**mesh["prt"], "tableChannels": 2}})
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(
             {**mesh, "prt": {**mesh["prt"], "directionCount": 2}})

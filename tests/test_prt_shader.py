@@ -11,11 +11,9 @@ from sssbake.pipeline.shaders import shader_source
 
 # A driver for transform feedback: decode every vertex for one light direction per vertex.
 DRIVER = """#include "prt_decode.glsl"
-in uvec2 in_prt_ref;
-in ivec2 in_prt_w;
 in vec3 in_dir;
 out vec3 v_q;
-void main() { v_q = prt_decode(gl_VertexID, in_prt_ref, in_prt_w, normalize(in_dir)); }
+void main() { v_q = prt_decode(gl_VertexID, normalize(in_dir)); }
 """
 
 
@@ -28,7 +26,7 @@ def ctx():
     return context
 
 
-def _source(dialect: str) -> str:
+def _source(dialect: str, prelude: str) -> str:
     from sssbake.pipeline import shaders
 
     original = shaders._expand
@@ -39,18 +37,19 @@ def _source(dialect: str) -> str:
 
     shaders._expand = expand
     try:
-        return shader_source("driver", dialect)
+        return shader_source("driver", dialect, prelude)
     finally:
         shaders._expand = original
 
 
 def decode_on_gpu(ctx, prt, directions, dialect="glsl330", width=4096):
-    program = ctx.program(vertex_shader=_source(dialect), varyings=["v_q"])
+    # the SH order as a uniform here (the renderer compiles a variant per order)
+    compact = "#define PRT_COMPACT\n" if prt.weight_bits == 8 else ""
+    program = ctx.program(vertex_shader=_source(dialect, compact), varyings=["v_q"])
     textures = upload(ctx, program, prt, width=width)
-    ref, w = per_vertex_arrays(prt)
     n = prt.vertex_count
-    buffers = [(ctx.buffer(ref.tobytes()), "2u2", "in_prt_ref"), (ctx.buffer(w.tobytes()), "2i2", "in_prt_w"),
-               (ctx.buffer(np.ascontiguousarray(directions, np.float32).tobytes()), "3f", "in_dir")]
+    buffers = [(ctx.buffer(a.tobytes()), fmt, name) for a, fmt, name in per_vertex_arrays(prt)]
+    buffers.append((ctx.buffer(np.ascontiguousarray(directions, np.float32).tobytes()), "3f", "in_dir"))
     vao = ctx.vertex_array(program, [b for b in buffers if b[2] in program])
     out = ctx.buffer(reserve=n * 12)
     vao.transform(out, mode=moderngl.POINTS, vertices=n)
@@ -62,6 +61,8 @@ def decode_on_gpu(ctx, prt, directions, dialect="glsl330", width=4096):
 
 @pytest.mark.parametrize("dialect", ["glsl330", "essl300"])
 @pytest.mark.parametrize("options", [PrtCompressOptions(sh_order=3, weights="least_squares"),
+                                     PrtCompressOptions(sh_order=2, tables="rgb", weight_bits=16),
+                                     PrtCompressOptions(),
                                      PrtCompressOptions(mode="sh", sh_order=8, dq_percentile=100),
                                      PrtCompressOptions(mode="lloyd")])
 def test_glsl_decode_matches_numpy(ctx, blob, dialect, options):

@@ -12,6 +12,7 @@ from sssbake.pipeline.reference_points import (
     closest_point_barycentrics,
     least_squares_weights,
     reference_points,
+    refine_reference_points,
 )
 from sssbake.pipeline.simplify import Simplified
 
@@ -169,6 +170,43 @@ def test_least_squares_weights_never_fit_worse_and_fall_back_when_ill_posed(toru
     # every new triangle shares a corner with the geometric one
     shared = (best_corners[:, :, None] == corners[:, None, :]).any(axis=(1, 2))
     assert np.all(shared)
+
+
+def test_refinement_adds_points_where_the_fit_is_worst(grid):
+    v, f = grid
+    d = fibonacci_sphere(32)
+    # smooth everywhere but a sharp lobe that swings across the corner x, y > 0.7
+    tilt = np.clip((v[:, :1] - 0.7) * (v[:, 1:2] - 0.7) * 40.0, 0.0, 1.0) * (v[:, :1] > 0.7) * (v[:, 1:2] > 0.7)
+    lobe = np.clip(d[None, :, 2] * (1.0 - tilt) + d[None, :, 0] * tilt, 0.0, None) ** 4
+    q = np.stack([lobe * (1.0 + 0.1 * c) + 0.05 * v[:, :1] for c in range(3)])
+    start = reference_points(v, f, 20)
+    refs = refine_reference_points(v, start, q, 45)
+    r0 = len(start.ref_vertices)
+    assert len(refs.ref_vertices) == 45 and len(np.unique(refs.ref_vertices)) == 45
+    np.testing.assert_array_equal(refs.ref_vertices[:r0], start.ref_vertices)
+    # splitting 1-to-3 adds two triangles per point; every vertex on a triangle, weight 1 at references
+    assert len(refs.triangles) == len(start.triangles) + 2 * (45 - r0)
+    np.testing.assert_allclose(refs.weights.sum(axis=1), 1.0, atol=1e-12)
+    assert refs.weights.min() >= 0.0
+    corners = refs.ref_vertices[refs.triangles[refs.vertex_triangle]]
+    own = corners[refs.ref_vertices] == refs.ref_vertices[:, None]
+    np.testing.assert_array_equal(refs.weights[refs.ref_vertices], own.astype(np.float64))
+    # the positions are reproduced on the plane: the split triangles are a triangulation
+    p = np.einsum("nk,nkj->nj", refs.weights, v[corners])
+    inside = np.linalg.norm(p - v, axis=1) < 1e-12
+    assert inside.mean() > 0.95
+    # the new points crowd into the corner whose signal the start fitted worst (16 % of the area)
+    added = v[refs.ref_vertices[r0:]]
+    assert np.mean((added[:, 0] > 0.6) & (added[:, 1] > 0.6)) > 0.7
+
+    def misfit(r):
+        q_ref = q[:, r.ref_vertices]
+        fit = best_fit_triangles(q, q_ref, r)
+        tri = fit.triangles[fit.vertex_triangle]
+        approx = sum(fit.weights[None, :, k, None] * q_ref[:, tri[:, k], :] for k in range(3))
+        return ((q - approx) ** 2).sum()
+
+    assert misfit(refs) < 0.1 * misfit(reference_points(v, f, 45))
 
 
 def test_bad_input_is_refused(torus):

@@ -31,9 +31,12 @@ def quad_item(**kind):
     return dict(positions=v, normals=np.tile([0, 0, 1.0], (4, 1)), faces=f, model=np.eye(4), eta=1.3, **kind)
 
 
-def random_prt(n: int, rng, k: int = 40, refs: int = 30, ref_triangles: int = 70_000, order: int = 3) -> PrtData:
-    """Valid PrtData with random codes; more reference triangles than 65536 so that
-    ``_SSS_PRT_REF``'s high half is used."""
+def random_prt(n: int, rng, k: int = 40, refs: int = 30, ref_triangles: int = 70_000, order: int = 3,
+               channels: int = 3, weight_bits: int = 16) -> PrtData:
+    """Valid PrtData with random codes, RGB (`channels` 3) or shared tables (1), 16- or 8-bit
+    weights; by default more reference triangles than 65536 so that ``_SSS_PRT_REF``'s high half
+    is used."""
+    top = (1 << (weight_bits - 1)) - 1
     ds = direction_set(k, lookup_size=16)
     c = order * order
     vertex_triangle = rng.integers(0, ref_triangles, n).astype(np.int32)
@@ -43,17 +46,23 @@ def random_prt(n: int, rng, k: int = 40, refs: int = 30, ref_triangles: int = 70
         direction_inverse=ds.inverse.astype(np.float32), direction_lookup=ds.lookup.astype(np.int32),
         direction_neighbours=ds.neighbours.astype(np.int32),
         lut=np.sort(rng.uniform(0.0, 2.0, (3, 256)), axis=1).astype(np.float32),
-        ref_vertices=np.arange(refs, dtype=np.int64), ref_codes=rng.integers(0, 256, (refs, k, 3), dtype=np.uint8),
+        ref_vertices=np.arange(refs, dtype=np.int64),
+        ref_codes=rng.integers(0, 256, (refs, k, channels), dtype=np.uint8),
+        ref_scale=rng.uniform(0.2, 1.5, (refs if channels == 1 else 0, 3)).astype(np.float32),
         ref_triangles=rng.integers(0, refs, (ref_triangles, 3), dtype=np.int32),
-        vertex_triangle=vertex_triangle, weight_codes=rng.integers(-8000, 20000, (n, 2), dtype=np.int16),
-        weight_scale=1.5, dq_codes=rng.integers(-127, 128, (n, 3, c), dtype=np.int8),
+        vertex_triangle=vertex_triangle,
+        weight_codes=rng.integers(-top // 4, top * 2 // 3, (n, 2)).astype(np.int16), weight_scale=1.5,
+        weight_bits=weight_bits, dq_codes=rng.integers(-127, 128, (n, 3, c), dtype=np.int8),
         dq_scale=rng.uniform(0.0, 0.3, (3, c)).astype(np.float32), sh_order=order, eta=1.4)
 
 
-def sphere_item(rng):
+def sphere_item(rng, channels: int = 3, weight_bits: int = 16):
     s = trimesh.creation.icosphere(subdivisions=2)
     v = np.asarray(s.vertices)
-    return dict(positions=v, normals=v, faces=np.asarray(s.faces), model=MODEL, eta=1.4, prt=random_prt(len(v), rng))
+    # 8-bit weights address 65536 triangles at most: the top byte of the 16-bit index is used
+    triangles = 70_000 if weight_bits == 16 else 65_536
+    return dict(positions=v, normals=v, faces=np.asarray(s.faces), model=MODEL, eta=1.4,
+                prt=random_prt(len(v), rng, ref_triangles=triangles, channels=channels, weight_bits=weight_bits))
 
 
 def cpu_q(item, light: RenderLight) -> np.ndarray:
@@ -107,13 +116,13 @@ def test_sphere_coverage_matches_its_silhouette(renderers):
     assert mask.mean() == pytest.approx(np.pi * r * r / 4.0, rel=0.03)
 
 
-@pytest.mark.parametrize("light", [RenderLight(False, (0.3, 0.8, 0.5), 1.5),
-                                   RenderLight(True, (1.5, 2.5, 2.0), 40.0, mm_per_unit=2.0)],
-                         ids=["directional", "point"])
-def test_prt_decode_on_the_gpu_matches_numpy(renderers, light):
-    # wrapped tables (width 5), a 70000-triangle reference mesh, an object-to-world transform
+@pytest.mark.parametrize("light, channels, bits", [(RenderLight(False, (0.3, 0.8, 0.5), 1.5), 3, 16),
+                                                   (RenderLight(True, (1.5, 2.5, 2.0), 40.0, mm_per_unit=2.0), 1, 8)],
+                         ids=["directional-rgb-16", "point-shared-8"])
+def test_prt_decode_on_the_gpu_matches_numpy(renderers, light, channels, bits):
+    # wrapped tables (width 5), a 65536- or 70000-triangle reference mesh, an object-to-world transform
     rng = np.random.default_rng(7)
-    item = sphere_item(rng)
+    item = sphere_item(rng, channels, bits)
     camera = fit_camera(item["positions"] @ MODEL[:3, :3].T + MODEL[:3, 3], view_dir=(-0.2, -0.3, -1))
     r = renderers["glsl330"]
     gpu, mask = r.render([item], camera, light)
