@@ -24,13 +24,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cell_integral import cell_integral, triangle_integral_in_plane
+from .cell_integral import Cumulative, cell_integral, triangle_integral_in_plane
 from .clean import triangle_areas
 from .dipole import DipoleParams
 from .disc_average import DiscMean
 
 #: Sources within this many (a_o + a_i) of the receiver are split into sub-triangles.
-ZONE = 2.0
+ZONE = 1.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,7 +52,8 @@ class NearField:
     sub_area : (s,) float64
     sub_face : (s, 3) int64
         The vertices of the triangle it lies in.
-    params : DipoleParams
+    cumulative : Cumulative
+        The material's G(r), for the exact triangle integrals.
     disc : DiscMean
     """
 
@@ -65,7 +66,7 @@ class NearField:
     sub_normal: np.ndarray
     sub_area: np.ndarray
     sub_face: np.ndarray
-    params: DipoleParams
+    cumulative: Cumulative
     disc: DiscMean
 
     @staticmethod
@@ -102,7 +103,7 @@ class NearField:
         area = np.bincount(owner, weights=np.tile(tri_area / 6.0, 6), minlength=n)
         radii = np.sqrt(np.r_[area, sub_area] / np.pi)
         return NearField(x, area, np.asarray(normals, dtype=np.float64), cell_integral(x, f, params), sub_ptr,
-                         sub_corners, sub_normal, sub_area, sub_face, params, DiscMean.build(params, radii))
+                         sub_corners, sub_normal, sub_area, sub_face, Cumulative.build(params), DiscMean.build(params, radii))
 
     def weights(self, o: np.ndarray, i: np.ndarray) -> np.ndarray:
         """∫_{cell_i} Rd(|p - x_o|) dp for receivers o and sources i, (m,) each -> (m, 3), mm² · 1/mm²."""
@@ -129,7 +130,7 @@ class NearField:
             if np.any(shared):
                 tri = self.sub_corners[sub[shared]]
                 value[shared] = triangle_integral_in_plane(x[receiver[shared]], tri[:, 0], tri[:, 1], tri[:, 2],
-                                                           self.params)
+                                                           self.cumulative)
             apart = ~shared
             ds = x[receiver[apart]] - self.sub_corners[sub[apart]].mean(axis=1)
             dist = np.sqrt(np.einsum("ij,ij->i", ds, ds))
