@@ -79,7 +79,8 @@ def _verify(args) -> int:
     try:
         light = DEFAULT_LIGHT if args.light_dir is None else _vector(args.light_dir, "--light-dir")
         position = None if args.light_pos is None else _vector(args.light_pos, "--light-pos")
-        result = verify_file(args.file, args.technique, light, args.size, args.out, args.frames, position)
+        result = verify_file(args.file, args.technique, light, args.size, args.out, args.frames, position,
+                             args.reference)
     except (OSError, ValueError, PrtReadError) as e:
         print(f"error: {args.file}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
         return 1
@@ -214,6 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--light-dir", help="x,y,z world direction towards a directional light (default 0.4,0.8,0.45)")
     v.add_argument("--light-pos", help="x,y,z world position of a point light instead (unit irradiance at the "
                                        "objects' centre)")
+    v.add_argument("--reference", default="exact", choices=["exact", "clustered"],
+                   help="offline reference: every vertex pair (default), or far sources through float64 "
+                        "clusters (~1e-3 of q; for 100k+ vertices)")
     v.add_argument("--size", type=int, default=512, help="image width and height (default 512)")
     v.add_argument("--out", help="folder for the PNGs (default: next to the file)")
     v.add_argument("--frames", type=int, default=20, help="frames timed per shader (default 20)")

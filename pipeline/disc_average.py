@@ -42,6 +42,10 @@ NODES = 64
 OFF_PLANE = 0.3
 #: A tilted disc of radius below this fraction of sqrt(d² + z_r²) takes the expansion (~0.5 %).
 SMALL_TILTED = 0.25
+#: Beyond this many radii, for discs with σ_tr a below `POINT_SIGMA`, Rd(d) itself: the spread
+#: term is ~(a²/8)(9/d² + σ_tr²) of it, below 4e-3.
+POINT_REACH = 30.0
+POINT_SIGMA = 0.15
 #: Receivers at least this many radii above a tilted disc take the polar rule.
 POLAR_HEIGHT = 0.5
 
@@ -144,6 +148,10 @@ class DiscMean:
         log_table = np.log(np.maximum(mean, 1e-300)).reshape(count_a, count_t, 3).transpose(2, 0, 1).copy()
         return DiscMean(params, lo, log_table)
 
+    def is_point(self, d: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """(m,) bool: pairs far enough from a small enough disc that ḡ is Rd(d) itself."""
+        return (d > POINT_REACH * a) & (a * float(self.params.sigma_tr.max()) < POINT_SIGMA)
+
     def __call__(self, d: np.ndarray, a: np.ndarray, height: np.ndarray) -> np.ndarray:
         """ḡ for pairs at distance d from sources of radius a, the receiver `height` off the
         source's tangent plane (|offset · n_i|); mm, (m,) each -> (m, 3). a = 0 gives Rd(d).
@@ -189,7 +197,12 @@ class DiscMean:
                     ap = a[pick, None]
                     r2 = h[pick, None] ** 2 + along[:, None] ** 2 + (ap * rho) ** 2 - 2.0 * along[:, None] * ap * rho * cos_phi
                     out[pick] = np.einsum("k,mkc->mc", weight, diffuse_reflectance_profile(np.sqrt(r2), self.params))
-        rest = ~close
+        # Far from a small disc the spread term is below ~1e-3 of Rd: the point value, for all
+        # three channels at once (most pairs of the offline reference are of this kind).
+        point = ~close & self.is_point(d, a)
+        if np.any(point):
+            out[point] = diffuse_reflectance_profile(d[point], self.params)
+        rest = ~close & ~point
         if np.any(rest):
             dr = d[rest]
             # ½ tr(H Σ) for a disc of covariance (a²/4)(I - n nᵀ) with c = û·n = h/d:

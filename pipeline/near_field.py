@@ -6,8 +6,9 @@ Each vertex owns a third of its triangles: its barycentric cell, the union of th
 (vertex, edge midpoint, centroid), six per triangle, all of equal area. The cells tile the
 surface; equal-area discs do not: on irregular meshes (fans of long triangles) a large disc
 reaches across its neighbours' cells, which then count twice. Measured on the 50k-vertex dragon
-at 10 mm/unit (marble), a disc overestimates a vertex's own cell integral by 16 % at the median
-and up to 4×. So:
+at 10 mm/unit (marble), an equal-area disc overestimates a vertex's own cell integral by 7 % at
+the median and up to 3.4×, and the q of one surface at 50k and 200k vertices differed by 4.9 %
+rms (24 % at worst) with discs, 2.5 % (17 %) with this scheme. So:
 
 - the receiver's own cell is integrated exactly (`cell_integral`);
 - sources close to the receiver (d < `ZONE`·(a_o + a_i), a = sqrt(ΔA/π)) are their six-per-
@@ -26,7 +27,7 @@ import numpy as np
 
 from .cell_integral import Cumulative, cell_integral, triangle_integral_in_plane
 from .clean import triangle_areas
-from .dipole import DipoleParams
+from .dipole import DipoleParams, diffuse_reflectance_profile
 from .disc_average import DiscMean
 
 #: Sources within this many (a_o + a_i) of the receiver are split into sub-triangles.
@@ -112,6 +113,16 @@ class NearField:
         d = np.sqrt(np.einsum("ij,ij->i", delta, delta))
         radius = np.sqrt(self.area / np.pi)
         out = np.empty((len(o), 3))
+        # Most pairs of a gather are far from small sources: the point value, before any of
+        # the finer cases (`DiscMean.is_point`, the same rule as inside `DiscMean`).
+        point = self.disc.is_point(d, radius[i]) & (o != i)
+        if np.any(point):
+            out[point] = diffuse_reflectance_profile(d[point], self.disc.params) * self.area[i[point], None]
+            if np.all(point):
+                return out
+            rest = np.flatnonzero(~point)
+            out[rest] = self.weights(o[rest], i[rest])
+            return out
         itself = o == i
         out[itself] = self.own[o[itself]]
         split = ~itself & (d < ZONE * (radius[o] + radius[i]))

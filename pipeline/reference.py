@@ -21,6 +21,7 @@ from .dipole import DipoleParams, radius_for_energy
 from .fresnel import fresnel_transmittance
 from .materials import Material
 from .near_field import NearField
+from .scatter_operator import ScatterOptions, scatter_operator
 from .visibility import direction_visibility, point_visibility
 
 #: Vertex pairs evaluated at once (bounds memory: ~100 bytes per pair).
@@ -78,10 +79,20 @@ def incident_signal(surface: Surface, mm_per_unit: float, material: Material, li
 
 
 def reference_scattering(surface: Surface, mm_per_unit: float, material: Material, light: Light,
-                         energy_dropped: float = 1e-4) -> np.ndarray:
-    """(3, n) float64 scattered radiance at every surface vertex (before the view Fresnel)."""
+                         energy_dropped: float = 1e-4, clustered: bool = False) -> np.ndarray:
+    """(3, n) float64 scattered radiance at every surface vertex (before the view Fresnel).
+
+    The exact pair sum costs O(n · sources within the radius): ~4-5 minutes for 50k marble
+    vertices at 10 mm/unit. ``clustered=True`` sums far sources through the bake's clusters
+    instead, in float64 at separation 3 (~1e-3 of q from the exact sum), for meshes where the
+    exact sum would take hours; the near field and energy limit are the same.
+    """
     p = DipoleParams.from_material(material)
     x = surface.positions * mm_per_unit
+    if clustered:
+        options = ScatterOptions(energy_dropped=energy_dropped, separation=3, float32=False)
+        operator = scatter_operator(x, surface.faces, surface.normals, p, options)
+        return operator.apply(incident_signal(surface, mm_per_unit, material, light)[:, None])[:, :, 0]
     field = NearField.build(x, surface.faces, surface.normals, p)
     irradiance = incident_signal(surface, mm_per_unit, material, light)
     radius = radius_for_energy(energy_dropped, p)

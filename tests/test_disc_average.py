@@ -56,6 +56,13 @@ def test_limits():
     np.testing.assert_allclose(table(far, np.array([0.2]), np.zeros(1)), disc_mean_exact(far, 0.2, P), rtol=1e-4)
     np.testing.assert_allclose(table(np.ones(1), np.zeros(1), np.zeros(1)), diffuse_reflectance_profile(np.ones(1), P),
                                rtol=1e-12)
+    # Far beyond a disc small against 1/σ_tr: the point value, within the spread term it leaves out.
+    tiny = DiscMean.build(P, np.array([0.05]))
+    d = np.array([5.0])
+    exact = disc_mean_exact(d, 0.05, P)
+    got = tiny(d, np.array([0.05]), np.zeros(1))
+    np.testing.assert_allclose(got, diffuse_reflectance_profile(d, P), rtol=1e-12)
+    assert np.all(np.abs(got / exact - 1) < 4e-3)
 
 
 @pytest.mark.parametrize("name", ["marble", "skin1", "ketchup", "wholemilk"])

@@ -101,3 +101,14 @@ def test_bad_lights_and_scales_are_refused():
         Light("directional", (0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match="mm_per_unit"):
         precompute_prt(two_spheres(), 0.0, SHORT, fibonacci_sphere(4))
+
+
+def test_clustered_reference_follows_the_exact_sum():
+    s = surface_of(*(lambda m: (np.asarray(m.vertices) * 20.0, np.asarray(m.faces)))(trimesh.creation.icosphere(3)))
+    light = Light("directional", (0.3, -0.5, 0.8))
+    exact = reference_scattering(s, 1.0, preset("marble"), light)
+    clustered = reference_scattering(s, 1.0, preset("marble"), light, clustered=True)
+    err = np.abs(clustered - exact)
+    assert err.max() <= 5e-3 * exact.max()
+    assert np.sqrt(np.mean(err**2)) <= 2e-3 * np.sqrt(np.mean(exact**2))
+    assert err.max() > 0  # it did take the other path

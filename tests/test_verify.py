@@ -35,6 +35,12 @@ def test_uncompressed_prt_beats_lambert_against_the_reference(tmp_path, capsys):
     assert point["light_pos"] == [25.0, 15.0, 20.0]
     assert np.allclose(point["light_dir"], np.array([25.0, 15.0, 20.0]) / np.linalg.norm([25.0, 15.0, 20.0]), atol=0.05)
     assert point["rmse_object"] < 0.03 and point["rmse_object"] < 0.75 * point["rmse_object_lambert"]
+    # The clustered reference (for big meshes) gives nearly the same figures.
+    assert main(["verify", str(out / "sphere.glb"), "--size", "96", "--frames", "2", "--json",
+                 "--reference", "clustered"]) == 0
+    clustered = json.loads(capsys.readouterr().out)
+    assert clustered["reference"] == "clustered" and result["reference"] == "exact"
+    assert abs(clustered["rmse_object"] - result["rmse_object"]) < 0.1 * result["rmse_object"]
     assert main(["verify", str(out / "sphere.glb"), "--light-pos", "1,2"]) == 1
     assert "--light-pos takes three comma-separated numbers" in capsys.readouterr().err
     assert main(["verify", str(out / "sphere.glb"), "--light-pos", "2,1,1"]) == 1  # inside the ball
