@@ -43,7 +43,7 @@ class BakeOptions:
     prt_energy_dropped : float
         prt: fraction of R_d the gather radius may drop.
     prt_mode, prt_reference_fraction, prt_sh_order, prt_weights, prt_tables, prt_refine, prt_weight_bits,
-    prt_byte_budget
+    prt_byte_budget, prt_reference_floor
         prt compression (see `prt_compress.PrtCompressOptions`).
     """
 
@@ -65,6 +65,7 @@ class BakeOptions:
     prt_refine: float = PRT_COMPRESS_DEFAULTS.refine
     prt_weight_bits: int = PRT_COMPRESS_DEFAULTS.weight_bits
     prt_byte_budget: float | None = PRT_COMPRESS_DEFAULTS.byte_budget
+    prt_reference_floor: int = PRT_COMPRESS_DEFAULTS.reference_floor
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -111,6 +112,8 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"prt_weight_bits must be one of {list(WEIGHT_BITS)}, got {o.prt_weight_bits!r}")
     if o.prt_byte_budget is not None and not (isinstance(o.prt_byte_budget, (int, float)) and o.prt_byte_budget > 0):
         raise ValueError(f"prt_byte_budget must be a positive number of bytes per vertex, got {o.prt_byte_budget!r}")
+    if not (isinstance(o.prt_reference_floor, int) and o.prt_reference_floor >= 0):
+        raise ValueError(f"prt_reference_floor must be a whole number >= 0, got {o.prt_reference_floor!r}")
     if not (0.0 <= o.prt_refine < 1.0):
         raise ValueError(f"prt_refine must be in [0, 1), got {o.prt_refine}")
     if not (0.0 < o.prt_reference_fraction <= 1.0):

@@ -101,9 +101,10 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     ds, q, precompute_seconds, target = uncompressed
     configs = [("quantization", PrtCompressOptions(mode="lloyd"))]
     configs += [("sh", PrtCompressOptions(mode="sh", sh_order=n)) for n in orders]
-    configs += [("reference_points", PrtCompressOptions(reference_fraction=f, sh_order=n, weights=w))
+    # The fraction sweep measures fractions: no floor on the reference count.
+    configs += [("reference_points", PrtCompressOptions(reference_fraction=f, sh_order=n, weights=w, reference_floor=0))
                 for f in reference_fractions for n in (0, 2, 3) for w in WEIGHTS]
-    configs += [("reference_points", PrtCompressOptions(reference_fraction=f, **change))
+    configs += [("reference_points", PrtCompressOptions(reference_fraction=f, reference_floor=0, **change))
                 for f in reference_fractions for change in ({"tables": "rgb"}, {"refine": 0.0})]
     default_prt = None
     for sweep, options in configs:

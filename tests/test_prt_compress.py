@@ -232,3 +232,17 @@ def test_bad_input_is_refused(torus):
     prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="sh", sh_order=1))
     with pytest.raises(ValueError, match="omega must be"):
         evaluate(prt, np.ones((2, 3)))
+
+
+def test_reference_floor_keeps_small_meshes_dense():
+    # 6.5 % of 642 vertices would be 42 points; the floor asks for 256 (and all of a smaller mesh).
+    import trimesh
+    from sssbake.pipeline.directions import direction_set
+    from sssbake.pipeline.prt_compress import PrtCompressOptions, compress_prt
+    m = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    x, f = np.asarray(m.vertices), np.asarray(m.faces)
+    dirs = direction_set(24)
+    q = np.clip(np.einsum("ij,kj->ik", x / 10.0, dirs.directions), 0.0, None)[None].repeat(3, axis=0) * 0.1
+    for floor, expected in ((256, 256), (0, 42), (5000, 642)):
+        prt = compress_prt(q, dirs, x, f, 1.3, PrtCompressOptions(reference_floor=floor))
+        assert abs(len(prt.ref_vertices) - expected) <= 0.05 * expected + 3, (floor, len(prt.ref_vertices))
