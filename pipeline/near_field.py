@@ -116,13 +116,19 @@ class NearField:
         # Most pairs of a gather are far from small sources: the point value, before any of
         # the finer cases (`DiscMean.is_point`, the same rule as inside `DiscMean`).
         point = self.disc.is_point(d, radius[i]) & (o != i)
-        if np.any(point):
-            out[point] = diffuse_reflectance_profile(d[point], self.disc.params) * self.area[i[point], None]
-            if np.all(point):
-                return out
-            rest = np.flatnonzero(~point)
-            out[rest] = self.weights(o[rest], i[rest])
-            return out
+        out[point] = diffuse_reflectance_profile(d[point], self.disc.params) * self.area[i[point], None]
+        rest = np.flatnonzero(~point)
+        if len(rest):
+            out[rest] = self._close(o[rest], i[rest])
+        return out
+
+    def _close(self, o: np.ndarray, i: np.ndarray) -> np.ndarray:
+        """`weights` of pairs that are not far from small sources."""
+        x = self.positions
+        delta = x[o] - x[i]
+        d = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+        radius = np.sqrt(self.area / np.pi)
+        out = np.empty((len(o), 3))
         itself = o == i
         out[itself] = self.own[o[itself]]
         split = ~itself & (d < ZONE * (radius[o] + radius[i]))
