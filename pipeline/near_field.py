@@ -119,15 +119,13 @@ class NearField:
         out[point] = diffuse_reflectance_profile(d[point], self.disc.params) * self.area[i[point], None]
         rest = np.flatnonzero(~point)
         if len(rest):
-            out[rest] = self._close(o[rest], i[rest])
+            out[rest] = self._close(o[rest], i[rest], delta[rest], d[rest], radius)
         return out
 
-    def _close(self, o: np.ndarray, i: np.ndarray) -> np.ndarray:
-        """`weights` of pairs that are not far from small sources."""
+    def _close(self, o: np.ndarray, i: np.ndarray, delta: np.ndarray, d: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """`weights` of pairs that are not far from small sources (offsets x_o - x_i, distances
+        and every vertex's disc radius given)."""
         x = self.positions
-        delta = x[o] - x[i]
-        d = np.sqrt(np.einsum("ij,ij->i", delta, delta))
-        radius = np.sqrt(self.area / np.pi)
         out = np.empty((len(o), 3))
         itself = o == i
         out[itself] = self.own[o[itself]]
