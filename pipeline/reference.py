@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .clean import Surface
-from .dipole import DipoleParams, radius_for_energy
+from .dipole import DipoleParams, radius_for_energy, total_diffuse_reflectance
 from .fresnel import fresnel_transmittance
 from .materials import Material
 from .near_field import NearField
@@ -102,8 +102,7 @@ def reference_scattering(surface: Surface, mm_per_unit: float, material: Materia
     out, fraction = _gather(field, np.repeat(irradiance[active, None], 3, axis=1), active, radius)
     # As in the bake (`scatter_operator._limit_energy`): a source sending out more than R_d in
     # all is scaled down as a whole.
-    rd = 0.5 * p.alpha_prime * (np.exp(-p.sigma_tr * p.z_r) + np.exp(-p.sigma_tr * p.z_v))
-    limit = (1.0 - 1e-6) * rd[None, :]
+    limit = (1.0 - 1e-6) * total_diffuse_reflectance(p.alpha_prime, p.eta)[None, :]
     over = np.flatnonzero((fraction > limit).any(axis=1))
     if len(over):
         cut = 1.0 - np.minimum(1.0, limit / np.maximum(fraction[over], 1e-300))  # share taken away

@@ -45,7 +45,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from .clean import vertex_areas
-from .dipole import DipoleParams, disc_integral, profile_derivatives, radius_for_energy
+from .dipole import DipoleParams, disc_integral, profile_derivatives, radius_for_energy, total_diffuse_reflectance
 from .near_field import NearField
 
 #: Pair entries computed at once per thread while building (bounds the build's temporaries).
@@ -237,7 +237,7 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
     n = len(x)
 
     radius = radius_for_energy(options.energy_dropped, params)
-    total = 0.5 * params.alpha_prime * (np.exp(-params.sigma_tr * params.z_r) + np.exp(-params.sigma_tr * params.z_v))
+    total = total_diffuse_reflectance(params.alpha_prime, params.eta)
     kept = np.diagonal(disc_integral(radius, params))
     dropped = np.clip(np.where(total > 0, 1.0 - kept / np.where(total > 0, total, 1.0), 0.0), 0.0, 1.0)
     r_max = float(radius.max())
