@@ -13,6 +13,7 @@ from sssbake.pipeline.materials import Material, preset
 from sssbake.pipeline.prt_precompute import PrtPrecomputeOptions, precompute_prt
 from sssbake.pipeline.reference import Light, reference_scattering
 from sssbake.pipeline.scatter_operator import ScatterOptions
+from sssbake.pipeline import visibility
 from sssbake.pipeline.visibility import direction_visibility, point_visibility
 from fixtures import plane
 
@@ -58,6 +59,15 @@ def test_visibility_sees_the_horizon_and_occluders():
     pvis = point_visibility(s.positions, s.faces, s.normals, np.array([1.5, 0.0, 0.0]))
     inner = np.abs(s.positions[:, 0] - 1.5) < 0.6
     assert pvis[inner & near_axis].all() and not pvis[s.positions[:, 0] < -0.5].any()
+
+
+def test_visibility_in_many_batches_is_the_same(monkeypatch):
+    s = two_spheres()
+    directions = fibonacci_sphere(9)
+    whole = direction_visibility(s.positions, s.faces, s.normals, directions)
+    monkeypatch.setattr(visibility, "BATCH", 37)  # batches split across the threads
+    assert np.array_equal(direction_visibility(s.positions, s.faces, s.normals, directions), whole)
+    assert 0.2 < whole.mean() < 0.5  # the pair shadows part of the lit half
 
 
 def test_reference_equals_precompute_at_a_set_direction():
