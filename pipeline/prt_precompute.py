@@ -15,6 +15,7 @@ import numpy as np
 
 from .clean import Surface
 from .dipole import DipoleParams
+from .freed_memory import release_freed_memory
 from .fresnel import fresnel_transmittance
 from .materials import Material
 from .scatter_operator import SCATTER_DEFAULTS, ScatterOperator, ScatterOptions, scatter_operator
@@ -28,11 +29,12 @@ class PrtPrecomputeOptions:
     scatter : ScatterOptions
         The gather's energy bound and hierarchy.
     chunk : int
-        Directions gathered at once (bounds temporary memory).
+        Directions gathered at once (bounds temporary memory; measured on a 150k-vertex dragon,
+        25 rather than 50 saved 0.17 GB and 3 s of 16).
     """
 
     scatter: ScatterOptions = SCATTER_DEFAULTS
-    chunk: int = 50
+    chunk: int = 25
 
 
 PRT_PRECOMPUTE_DEFAULTS = PrtPrecomputeOptions()
@@ -105,7 +107,8 @@ def precompute_prt(surface: Surface, mm_per_unit: float, material: Material, dir
     for s in range(0, len(directions), options.chunk):
         block = slice(s, s + options.chunk)
         signal = irradiance_signal(surface.normals, directions[block], visible[:, block], material.eta)
-        q[:, :, block] = operator.apply(signal)
+        operator.apply(signal, out=q[:, :, block])
+        release_freed_memory()  # the threads' temporaries stay in their arenas otherwise (~0.9 GB at 150k)
     seconds["gather"] = time.perf_counter() - t
     stats = {**{k: v for k, v in operator.stats.items() if k != "seconds"}, "entries": operator.nnz,
              "operator_bytes": operator.nbytes, "visible_fraction": float(visible.mean())}

@@ -46,6 +46,7 @@ from scipy.spatial import cKDTree
 
 from .clean import vertex_areas
 from .dipole import DipoleParams, disc_integral, profile_derivatives, radius_for_energy, total_diffuse_reflectance
+from .freed_memory import release_freed_memory
 from .near_field import NearField
 
 #: Pair entries computed at once per thread while building (bounds the build's temporaries).
@@ -140,13 +141,15 @@ class ScatterOperator:
         total = self.order.nbytes + self.source_area.nbytes + _csr_bytes(self.near)
         return total + sum(_csr_bytes(f.matrix) + f.starts.nbytes for f in self.levels)
 
-    def apply(self, signal: np.ndarray) -> np.ndarray:
+    def apply(self, signal: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Gather signals.
 
         Parameters
         ----------
         signal : (n, K) float64
             Per vertex (caller's order) and signal, the irradiance-like quantity E; finite.
+        out : (3, n, K) float64, optional
+            Where to write the result (a view of a larger array, say); a new array if None.
 
         Returns
         -------
@@ -160,20 +163,28 @@ class ScatterOperator:
         if not np.all(np.isfinite(signal)):
             raise ValueError("scatter apply: signal contains NaN or Inf")
         k = signal.shape[1]
-        out = np.empty((3, n, k))
+        if out is None:
+            out = np.empty((3, n, k))
+        elif out.shape != (3, n, k):
+            raise ValueError(f"scatter apply: out must be (3, {n}, {k}), got {out.shape}")
         dtype = self.near.dtype
 
         def run(b: slice) -> None:
             e = signal[self.order, b]
             q = self.near @ e.astype(dtype, copy=False)
-            weighted = [e * self.source_area[c][:, None] for c in range(3)]
             for f in self.levels:
-                moments = np.concatenate([np.add.reduceat(w, f.starts, axis=0) for w in weighted])
-                q += f.matrix @ moments.astype(dtype, copy=False)
+                m = len(f.starts)
+                moments = np.empty((3 * m, e.shape[1]), dtype)
+                for c in range(3):  # one channel's weighted signal at a time bounds the temporaries
+                    moments[c * m:(c + 1) * m] = np.add.reduceat(e * self.source_area[c][:, None], f.starts, axis=0)
+                q += f.matrix @ moments
             out[:, self.order, b] = q.reshape(3, n, -1)
 
-        blocks = [slice(s, min(k, s + self.block)) for s in range(0, k, self.block)]
-        _run_all(run, blocks, self.threads)
+        # Blocks of at most `block` signals, as many as a multiple of the threads, of equal size.
+        count = -(-k // self.block)
+        count = min(k, count + (-count) % self.threads)
+        edges = np.linspace(0, k, count + 1).round().astype(int)
+        _run_all(run, [slice(a, b) for a, b in zip(edges[:-1], edges[1:])], self.threads)
         if np.all(signal >= 0):
             # The spread term is an expansion: it can dip a hair below zero, which q cannot.
             np.maximum(out, 0.0, out=out)
@@ -311,6 +322,7 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
     per_row = np.bincount(pairs[:, 0], weights=size[pairs[:, 1]], minlength=len(starts[0])).astype(np.int64)[keys]
     near = build.near(internal, per_row, source_of)
     source_area = _limit_energy(near, levels, area, total)
+    release_freed_memory()  # the build's temporaries, before the caller allocates q
     stats = dict(cell_mm=float(h0), levels=top + 1, separation=a, near_nnz=int(near.nnz),
                  far_nnz=far_nnz[::-1], cells=cells[::-1], seconds=time.perf_counter() - t0)
     return ScatterOperator(order, source_area, near, levels[::-1], radius, dropped, stats,
@@ -329,24 +341,40 @@ def _limit_energy(near: sp.csr_matrix, levels: list, area: np.ndarray, total: np
     """
     n = len(area)
     headroom = 1.0 - 1e-6  # room for float32 rounding
-    weights = np.tile(area, 3)  # each channel block's target areas
+    weights = np.tile(area, 3)  # the target areas of each channel block
     source_area = np.tile(area, (3, 1))
-    far = [(f.matrix.T @ weights).reshape(3, -1) for f in levels]  # Σ_o ΔA_o K(o, cluster) per channel
+    far = [_column_sums(f.matrix, weights, 0, f.matrix.shape[0]).reshape(3, -1) for f in levels]  # Σ_o ΔA_o K(o, cluster)
     for c in range(3):
-        lo, hi = near.indptr[c * n], near.indptr[(c + 1) * n]
-        rows = np.repeat(np.arange(n), np.diff(near.indptr[c * n:(c + 1) * n + 1]))
-        cols = near.indices[lo:hi]
-        near_out = np.bincount(cols, weights=area[rows] * near.data[lo:hi].astype(np.float64), minlength=n)
-        fraction = np.divide(near_out, area, out=np.zeros(n), where=area > 0)
+        fraction = np.divide(_column_sums(near, area, c * n, (c + 1) * n), area, out=np.zeros(n), where=area > 0)
         for f, per_cluster in zip(levels, far):
             fraction += np.repeat(per_cluster[c], np.diff(np.r_[f.starts, n]))
         over = fraction > headroom * total[c]
         if np.any(over):
             scale = np.ones(n)
             scale[over] = headroom * total[c] / fraction[over]
-            near.data[lo:hi] = (near.data[lo:hi].astype(np.float64) * scale[cols]).astype(near.dtype)
+            for r0, r1 in _row_chunks(near, c * n, (c + 1) * n):
+                lo, hi = near.indptr[r0], near.indptr[r1]
+                near.data[lo:hi] = (near.data[lo:hi].astype(np.float64) * scale[near.indices[lo:hi]]).astype(near.dtype)
             source_area[c] *= scale
     return source_area
+
+
+def _row_chunks(matrix: sp.csr_matrix, row0: int, row1: int) -> list:
+    """(r0, r1) ranges of the rows row0..row1 - 1 with about ENTRIES_PER_CHUNK entries each."""
+    cuts = np.searchsorted(matrix.indptr, np.arange(matrix.indptr[row0], matrix.indptr[row1], ENTRIES_PER_CHUNK))
+    bounds = np.unique(np.r_[row0, np.clip(cuts, row0, row1), row1])
+    return list(zip(bounds[:-1], bounds[1:]))
+
+
+def _column_sums(matrix: sp.csr_matrix, weights: np.ndarray, row0: int, row1: int) -> np.ndarray:
+    """(width,) Σ_r weights[r - row0] matrix[r, :] over rows row0..row1 - 1, in float64 and in
+    chunks of rows (scipy's `matrix.T @ weights` would first copy a float32 matrix to float64)."""
+    out = np.zeros(matrix.shape[1])
+    for r0, r1 in _row_chunks(matrix, row0, row1):
+        lo, hi = matrix.indptr[r0], matrix.indptr[r1]
+        w = np.repeat(weights[r0 - row0:r1 - row0], np.diff(matrix.indptr[r0:r1 + 1]))
+        out += np.bincount(matrix.indices[lo:hi], weights=w * matrix.data[lo:hi], minlength=len(out))
+    return out
 
 
 class _Builder:

@@ -135,6 +135,14 @@ def test_float32_and_threads_change_nothing_but_rounding():
     # float32 entries round at ~1e-7 relative; the sums stay within 1e-5 of the largest q.
     assert np.abs(single - ref).max() <= 1e-5 * ref.max()
     assert np.abs(single - ref).max() > 0  # it really ran in float32
+    # Written into a view of a larger array (as the precompute does), one block per thread.
+    op = scatter_operator(x, f, normals, p, ScatterOptions(float32=False, threads=2, block=64))
+    q = np.full((3, len(x), 50), -1.0)
+    op.apply(signal[:, 3:33], out=q[:, :, 10:40])
+    np.testing.assert_allclose(q[:, :, 10:40], ref[:, :, 3:33], rtol=1e-12, atol=1e-15 * ref.max())
+    assert np.all(q[:, :, :10] == -1.0) and np.all(q[:, :, 40:] == -1.0)
+    with pytest.raises(ValueError, match="out must be"):
+        op.apply(signal, out=q)
 
 
 def test_far_kernel_table_interpolates_to_its_bound():
