@@ -182,7 +182,6 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
         ref_scale = np.zeros((0, 3), dtype=np.float32)
         lut = np.zeros((3, LUT_LEVELS), dtype=np.float32)
         weight_codes, weight_scale, bits = np.zeros((n, 2), dtype=np.int16), 1.0, options.weight_bits
-        residual = q
     else:
         if options.mode == "lloyd":
             ref_vertices = np.arange(n, dtype=np.int64)
@@ -217,14 +216,16 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
         bits = 8 if options.weight_bits == 8 and len(ref_triangles) <= COMPACT_TRIANGLES else 16
         top = weight_code_max(bits)
         weight_codes = np.round(np.clip(weights[:, :2] / weight_scale, -1.0, 1.0) * top).astype(np.int16)
-        w = decode_weights(weight_codes, weight_scale, bits)
-        corners = ref_triangles[vertex_triangle]
-        residual = np.stack([q[c] - blend(w, q_ref[c], corners) for c in range(3)])
 
     count = order * order
     dq_codes = np.zeros((n, 3, count), dtype=np.int8)
     dq_scale = np.zeros((3, count), dtype=np.float32)
     if count:
+        residual = q
+        if options.mode != "sh":
+            w = decode_weights(weight_codes, weight_scale, bits)
+            corners = ref_triangles[vertex_triangle]
+            residual = np.stack([q[c] - blend(w, q_ref[c], corners) for c in range(3)])
         coeffs = np.einsum("ij,cnj->nci", sh_fit_matrix(directions.directions, order, options.sh_method), residual)
         dq_scale = int8_scales(coeffs, options.dq_percentile)
         dq_codes = encode_int8(coeffs, dq_scale)

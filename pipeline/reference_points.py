@@ -24,6 +24,8 @@ REFINE_ROUNDS = 4
 #: Defaults of the weight fits: ridge towards the prior weights relative to the normal matrix's
 #: mean diagonal, and the clip of w_0, w_1 (see `least_squares_weights`).
 REGULARISATION, LIMIT = 1e-3, 4.0
+#: Signal values gathered at once for a weight fit's inner products (rows × K, ~32 MB a copy).
+FIT_ELEMENTS = 1 << 22
 
 
 @dataclass(frozen=True, eq=False)
@@ -243,7 +245,7 @@ def least_squares_weights(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoint
     q, q_ref = _check_signals(q, q_ref, refs)
     n = len(refs.vertex_triangle)
     vertices = np.arange(n)
-    w01, _ = _fit(q, q_ref, vertices, refs.triangles[refs.vertex_triangle], refs.weights[:, :2],
+    w01, _ = _fit(q, q_ref, vertices, refs.triangles, refs.vertex_triangle, refs.weights[:, :2],
                   regularisation, limit)
     out = np.column_stack([w01, 1.0 - w01.sum(axis=1)])
     own = _is_reference(refs)
@@ -301,10 +303,10 @@ def best_fit_triangles(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints,
     best = np.full(n, np.inf)
     vertex_triangle = refs.vertex_triangle.copy()
     weights = refs.weights.copy()
-    chunk = max(1, (1 << 24) // (3 * q.shape[2]))  # bounds the gathered (3, chunk, K) blocks
+    chunk = 1 << 20  # (vertex, candidate) rows per fit: bounds its per-row arrays (the gathers bound themselves)
     for s in range(0, len(owner), chunk):
         v, t = owner[s:s + chunk], candidate[s:s + chunk]
-        w01, misfit = _fit(q, q_ref, v, tri[t], prior[s:s + chunk], regularisation, limit)
+        w01, misfit = _fit(q, q_ref, v, tri, t, prior[s:s + chunk], regularisation, limit)
         # Per vertex, the chunk's best pair (pairs are sorted by vertex, so minima are per run).
         order = np.lexsort((misfit, v))
         first = order[np.concatenate([[True], np.diff(v[order]) != 0])]
@@ -355,7 +357,7 @@ def refine_reference_points(positions: np.ndarray, refs: ReferencePoints, q: np.
         need = min(count, n) - len(refs.ref_vertices)
         if need <= 0:
             break
-        misfit = _fit(q, q[:, refs.ref_vertices], np.arange(n), refs.triangles[refs.vertex_triangle],
+        misfit = _fit(q, q[:, refs.ref_vertices], np.arange(n), refs.triangles, refs.vertex_triangle,
                       refs.weights[:, :2], REGULARISATION, LIMIT)[1]
         misfit[_is_reference(refs)] = 0.0  # a reference point reproduces itself
         refs = _split_worst(positions, refs, misfit, -(-need // (rounds - done)))
@@ -419,27 +421,36 @@ def _is_reference(refs: ReferencePoints) -> np.ndarray:
     return (corners == np.arange(len(corners))[:, None]).any(axis=1)
 
 
-def _fit(q: np.ndarray, q_ref: np.ndarray, vertices: np.ndarray, corners: np.ndarray, prior: np.ndarray,
-         regularisation: float, limit: float) -> tuple[np.ndarray, np.ndarray]:
-    """Regularised least-squares (w_0, w_1) of each vertex on its three reference points.
+def _fit(q: np.ndarray, q_ref: np.ndarray, vertices: np.ndarray, triangles: np.ndarray, which: np.ndarray,
+         prior: np.ndarray, regularisation: float, limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """Regularised least-squares (w_0, w_1) of each vertex on the three reference points of a triangle.
+
+    Rows pair `vertices` (m,) with `triangles[which]` (m,) of (T, 3) reference indices. The normal
+    equations come from inner products, each computed once: ⟨q_v, r⟩ per distinct (vertex,
+    reference) pair (a vertex's ~15 candidate triangles share ~10 references), ⟨r, r'⟩ per
+    distinct triangle, |q_v|² per vertex. Measured on the 50k-vertex marble dragon, `best_fit_
+    triangles` took 4.5 s instead of 12.1 s with the residuals formed row by row.
 
     Returns (m, 2) weights and (m,) misfit Σ_c Σ_j residual² (unregularised).
     """
-    m = len(vertices)
-    g = np.zeros((m, 2, 2))
-    b = np.zeros((m, 2))
-    rest = np.zeros(m)
-    for c in range(3):  # one channel at a time bounds the (m, K) temporaries
-        r2 = q_ref[c][corners[:, 2]]
-        target, a0, a1 = q[c][vertices] - r2, q_ref[c][corners[:, 0]] - r2, q_ref[c][corners[:, 1]] - r2
-        g[:, 0, 0] += np.einsum("ij,ij->i", a0, a0)
-        g[:, 0, 1] += np.einsum("ij,ij->i", a0, a1)
-        g[:, 1, 1] += np.einsum("ij,ij->i", a1, a1)
-        b[:, 0] += np.einsum("ij,ij->i", a0, target)
-        b[:, 1] += np.einsum("ij,ij->i", a1, target)
-        rest += np.einsum("ij,ij->i", target, target)
-    g[:, 1, 0] = g[:, 0, 1]
-    lam = regularisation * 0.5 * (g[:, 0, 0] + g[:, 1, 1]) + np.finfo(np.float64).tiny
+    m, r = len(vertices), q_ref.shape[1]
+    corners = triangles[which]
+    pair, back = np.unique((vertices[:, None].astype(np.int64) * r + corners).ravel(), return_inverse=True)
+    qr = _dots(q, pair // r, q_ref, pair % r)[back.ravel()].reshape(m, 3)  # ⟨q_v, r_k⟩
+    tri, tri_back = np.unique(which, return_inverse=True)
+    t = triangles[tri]
+    r00, r01, r02, r11, r12, r22 = (_dots(q_ref, t[:, k], q_ref, t[:, l])[tri_back.ravel()]
+                                    for k, l in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
+    vert, vert_back = np.unique(vertices, return_inverse=True)
+    qq = _dots(q, vert, q, vert)[vert_back.ravel()]
+    # With a_k = r_k - r_2 and target q - r_2: g = ⟨a_k, a_l⟩, b = ⟨a_k, target⟩, rest = |target|².
+    g = np.empty((m, 2, 2))
+    g[:, 0, 0] = r00 - 2.0 * r02 + r22
+    g[:, 0, 1] = g[:, 1, 0] = r01 - r02 - r12 + r22
+    g[:, 1, 1] = r11 - 2.0 * r12 + r22
+    b = np.column_stack([qr[:, 0] - r02 - qr[:, 2] + r22, qr[:, 1] - r12 - qr[:, 2] + r22])
+    rest = qq - 2.0 * qr[:, 2] + r22
+    lam = regularisation * 0.5 * np.abs(g[:, 0, 0] + g[:, 1, 1]) + np.finfo(np.float64).tiny
     w01 = np.linalg.solve(g + lam[:, None, None] * np.eye(2), (b + lam[:, None] * prior)[:, :, None])[:, :, 0]
     w01 = np.clip(w01, -limit, limit)
 
@@ -449,3 +460,12 @@ def _fit(q: np.ndarray, q_ref: np.ndarray, vertices: np.ndarray, corners: np.nda
     fitted, fallback = misfit(w01), misfit(prior)
     better = fitted <= fallback
     return np.where(better[:, None], w01, prior), np.where(better, fitted, fallback)
+
+
+def _dots(a: np.ndarray, i: np.ndarray, b: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """(len(i),) Σ_c Σ_k a[c, i, k] b[c, j, k], in chunks of rows (bounds the gathered copies)."""
+    out = np.empty(len(i))
+    rows = max(1, FIT_ELEMENTS // a.shape[2])
+    for s in range(0, len(i), rows):
+        out[s:s + rows] = np.einsum("cij,cij->i", a[:, i[s:s + rows]], b[:, j[s:s + rows]])
+    return out
