@@ -6,7 +6,8 @@
 Settings by name (`CONFIGS`): ``old`` (the defaults before shared tables, refinement and 8-bit
 weights), ``default``, ``paper`` (3 % reference points, SH order 3, barycentric weights), one
 change from ``old`` at a time at about its bytes (``shared``, ``refine``, ``w8``), the reference
-fraction around the default, and ``budget20`` (a 20 B/vertex byte budget).
+fraction around the default and above it, ``budget20`` (a 20 B/vertex byte budget), and ``floor`` /
+``floor-rgb`` (every vertex a reference point: what the table coding alone costs in error).
 
 q comes from `precompute_prt` for the Stanford bunny (../shared/assets/stanford_bunny/bunny.ply,
 1000 mm per unit) and dragon (../shared/assets/dragon/dragon.obj, 10 mm per unit) and is cached in
@@ -50,8 +51,11 @@ CONFIGS = {
     "refine": PrtCompressOptions(reference_fraction=0.015, tables="rgb", refine=0.6, weight_bits=16),
     "w8": PrtCompressOptions(reference_fraction=0.022, tables="rgb", refine=0.0, weight_bits=8),
     "shared+refine": PrtCompressOptions(reference_fraction=0.05, refine=0.6, weight_bits=16),
-    **{f"default{p}%": replace(PRT_COMPRESS_DEFAULTS, reference_fraction=p / 100) for p in (6, 6.5, 7, 7.5)},
+    **{f"default{p}%": replace(PRT_COMPRESS_DEFAULTS, reference_fraction=p / 100) for p in (6, 6.5, 7, 7.5, 15, 30)},
     "budget20": replace(PRT_COMPRESS_DEFAULTS, byte_budget=20.0),
+    # every vertex a reference point: the floor of the table coding alone
+    "floor": replace(PRT_COMPRESS_DEFAULTS, reference_fraction=1.0, refine=0.0),
+    "floor-rgb": replace(PRT_COMPRESS_DEFAULTS, reference_fraction=1.0, refine=0.0, tables="rgb"),
 }
 
 
