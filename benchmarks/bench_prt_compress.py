@@ -10,8 +10,9 @@ fraction around the default and above it, ``budget20`` (a 20 B/vertex byte budge
 ``floor-rgb`` (every vertex a reference point: what the table coding alone costs in error).
 
 q comes from `precompute_prt` for the Stanford bunny (../shared/assets/stanford_bunny/bunny.ply,
-1000 mm per unit) and dragon (../shared/assets/dragon/dragon.obj, 10 mm per unit) and is cached in
-/tmp as .npy (a rerun only compresses). For each compression setting it prints bytes per vertex
+1000 mm per unit) and dragon (../shared/assets/dragon/dragon.obj, 10 mm per unit; ``dragon200k``,
+the same surface at 200k vertices, on request; ``teapot200k``, the Utah teapot after three Loop
+subdivisions at 30 mm per unit, near the paper's 150k-vertex teapot) and is cached in /tmp as .npy (a rerun only compresses). For each compression setting it prints bytes per vertex
 (`bytes_per_vertex`, every byte), the rms q error at the direction set relative to the largest q,
 and image RMSE against the interpolated uncompressed q (as ``sssbake tradeoff`` measures it, the
 worst of `lights` random directional lights): over the whole image (the paper's figure) and over
@@ -21,11 +22,13 @@ the object's pixels. Skips meshes whose files are absent.
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from sssbake.pipeline.clean import clean_scene
 from sssbake.pipeline.directions import direction_set, interpolation_weights
@@ -38,7 +41,9 @@ from sssbake.pipeline.render import Renderer, fit_camera
 from sssbake.pipeline.tradeoff import image_exposure, lit_images, worst_rmse
 
 ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets"
-MESHES = {"bunny": ("stanford_bunny/bunny.ply", 1000.0), "dragon": ("dragon/dragon.obj", 10.0)}
+#: name -> (file, mm per unit, Loop subdivisions before the precompute).
+MESHES = {"bunny": ("stanford_bunny/bunny.ply", 1000.0, 0), "dragon": ("dragon/dragon.obj", 10.0, 0),
+          "dragon200k": ("dragon/dragon_subdiv1.ply", 10.0, 0), "teapot200k": ("teapot/teapot.obj", 30.0, 3)}
 #: The settings compared: name -> options (the defaults of the previous session as "old").
 CONFIGS = {
     "old": PrtCompressOptions(reference_fraction=0.015, sh_order=0, weights="best_fit", tables="rgb", refine=0.0,
@@ -61,8 +66,13 @@ CONFIGS = {
 
 def load_q(name: str, k: int):
     """(surface, q (3, n, K)) with q cached in /tmp."""
-    path, mm = MESHES[name]
+    path, mm, subdivisions = MESHES[name]
     surface = clean_scene(load_scene(str(ASSETS / path))).surfaces[0]
+    if subdivisions:
+        x, f = trimesh.remesh.subdivide_loop(surface.positions, surface.faces, iterations=subdivisions)
+        smooth = Path(tempfile.mkdtemp()) / f"{name}.ply"
+        trimesh.Trimesh(x, f, process=False).export(smooth)
+        surface = clean_scene(load_scene(str(smooth))).surfaces[0]
     ds = direction_set(k)
     cache = Path(f"/tmp/sssbake_bench_q_{name}_{len(surface.positions)}_{k}.npy")
     if cache.is_file():
@@ -77,7 +87,7 @@ def load_q(name: str, k: int):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--meshes", nargs="+", default=list(MESHES), choices=list(MESHES))
+    ap.add_argument("--meshes", nargs="+", default=["bunny", "dragon"], choices=list(MESHES))
     ap.add_argument("--configs", nargs="+", default=["old", "default"], choices=list(CONFIGS))
     ap.add_argument("--k", type=int, default=200)
     ap.add_argument("--lights", type=int, default=6)

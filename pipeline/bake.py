@@ -37,7 +37,7 @@ from .thickness import bake_thickness
 from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
-STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 2}
+STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3}
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
 
@@ -227,7 +227,8 @@ def bake_asset(
                                           options.prt_weights, tables=options.prt_tables,
                                           refine=options.prt_refine, weight_bits=options.prt_weight_bits,
                                           byte_budget=options.prt_byte_budget,
-                                          reference_floor=options.prt_reference_floor)
+                                          reference_floor=options.prt_reference_floor,
+                                          detail_order=options.prt_detail_order)
             baked, _ = runner.run(
                 "prt", STAGE_VERSIONS["prt"], mesh_key,
                 {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "k": options.prt_directions,

@@ -33,7 +33,7 @@ def _bake(args) -> int:
         overrides["validate"] = False
     for name in ("techniques", "prt_directions", "prt_energy_dropped", "prt_mode", "prt_reference_fraction",
                  "prt_sh_order", "prt_weights", "prt_tables", "prt_refine",
-                 "prt_weight_bits", "prt_byte_budget", "prt_reference_floor"):
+                 "prt_weight_bits", "prt_byte_budget", "prt_reference_floor", "prt_detail_order"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -199,6 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--prt-reference-floor", type=int,
                    help=f"prt: at least this many reference points (all vertices of smaller meshes; default "
                         f"{BAKE_DEFAULTS.prt_reference_floor})")
+    b.add_argument("--prt-detail-order", type=int,
+                   help=f"prt: SH order of each reference point's detail term with shared tables, 0 for none "
+                        f"(default {BAKE_DEFAULTS.prt_detail_order})")
     b.add_argument("--prt-byte-budget", type=float,
                    help="prt: bytes per vertex to spend; sets the reference count (default: from the fraction)")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")

@@ -43,7 +43,7 @@ class BakeOptions:
     prt_energy_dropped : float
         prt: fraction of R_d the gather radius may drop.
     prt_mode, prt_reference_fraction, prt_sh_order, prt_weights, prt_tables, prt_refine, prt_weight_bits,
-    prt_byte_budget, prt_reference_floor
+    prt_byte_budget, prt_reference_floor, prt_detail_order
         prt compression (see `prt_compress.PrtCompressOptions`).
     """
 
@@ -66,6 +66,7 @@ class BakeOptions:
     prt_weight_bits: int = PRT_COMPRESS_DEFAULTS.weight_bits
     prt_byte_budget: float | None = PRT_COMPRESS_DEFAULTS.byte_budget
     prt_reference_floor: int = PRT_COMPRESS_DEFAULTS.reference_floor
+    prt_detail_order: int = PRT_COMPRESS_DEFAULTS.detail_order
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -114,6 +115,8 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"prt_byte_budget must be a positive number of bytes per vertex, got {o.prt_byte_budget!r}")
     if not (isinstance(o.prt_reference_floor, int) and o.prt_reference_floor >= 0):
         raise ValueError(f"prt_reference_floor must be a whole number >= 0, got {o.prt_reference_floor!r}")
+    if not (isinstance(o.prt_detail_order, int) and 0 <= o.prt_detail_order <= MAX_ORDER):
+        raise ValueError(f"prt_detail_order must be a whole number in [0, {MAX_ORDER}], got {o.prt_detail_order!r}")
     if not (0.0 <= o.prt_refine < 1.0):
         raise ValueError(f"prt_refine must be in [0, 1), got {o.prt_refine}")
     if not (0.0 < o.prt_reference_fraction <= 1.0):

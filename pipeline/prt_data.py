@@ -27,7 +27,7 @@ uncompressed baseline makes every vertex its own reference point with weights (1
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -82,6 +82,14 @@ class PrtData:
         n of the paper (0: no Δq).
     eta : float
         Relative index of refraction, for F_t(η, ω_o) at runtime.
+    detail_order : int
+        SH order of the reference points' detail term (shared tables only; 0: none).
+    detail_codes : (R, D) int8
+        Per reference point, the SH coefficients of its detail shape as signed codes; D = detail_order².
+    detail_colour : (R, 3) int8
+        Per reference point, the RGB weights of its detail shape times 127.
+    detail_scale : (D,) float32
+        Per coefficient, the value of code 127.
     """
 
     directions: np.ndarray
@@ -102,6 +110,10 @@ class PrtData:
     dq_scale: np.ndarray
     sh_order: int
     eta: float
+    detail_order: int = 0
+    detail_codes: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int8))
+    detail_colour: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int8))
+    detail_scale: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
 
     @property
     def vertex_count(self) -> int:

@@ -28,6 +28,9 @@ def decode_at_directions(prt: PrtData) -> np.ndarray:
         w = decode_weights(prt.weight_codes, prt.weight_scale, prt.weight_bits)
         corners = prt.ref_triangles[prt.vertex_triangle]
         tables = reference_tables(prt.ref_codes, prt.lut, prt.ref_scale)
+        if prt.detail_order:
+            tables += reference_detail(prt.detail_codes, prt.detail_colour, prt.detail_scale, prt.detail_order,
+                                       prt.directions)
         for c in range(3):
             out[c] = blend(w, tables[c], corners)
     if prt.sh_order:
@@ -69,14 +72,43 @@ def evaluate(prt: PrtData, omega: np.ndarray, vertices: np.ndarray | None = None
         w = decode_weights(prt.weight_codes[vertices], prt.weight_scale, prt.weight_bits)
         corners = prt.ref_triangles[prt.vertex_triangle[vertices]]
         tables = reference_tables(prt.ref_codes, prt.lut, prt.ref_scale)
-        for c in range(3):
-            for r in range(3):
+        unit = omega / np.linalg.norm(omega, axis=1, keepdims=True)
+        if prt.detail_order:  # at ω itself: per vertex, each corner's detail shape
+            y = sh_basis(unit, prt.detail_order) * prt.detail_scale.astype(np.float64)  # (m, D)
+        for r in range(3):
+            if prt.detail_order:
+                shape = np.einsum("mi,mi->m", prt.detail_codes[corners[:, r]].astype(np.float64), y) / 127.0
+                detail = prt.detail_colour[corners[:, r]].T.astype(np.float64) / 127.0 * shape  # (3, m)
+            for c in range(3):
                 table = tables[c][corners[:, r][:, None], index]  # (m, 3 directions)
-                out[c] += w[:, r] * np.einsum("ma,ma->m", beta, table)
+                value = np.einsum("ma,ma->m", beta, table)
+                out[c] += w[:, r] * (value + detail[c] if prt.detail_order else value)
     if prt.sh_order:
         basis = sh_basis(omega / np.linalg.norm(omega, axis=1, keepdims=True), prt.sh_order)  # (m, C)
         out += np.einsum("mci,mi->cm", decode_int8(prt.dq_codes[vertices], prt.dq_scale), basis)
     return out
+
+
+def reference_detail(codes: np.ndarray, colour: np.ndarray, scale: np.ndarray, order: int,
+                     directions: np.ndarray) -> np.ndarray:
+    """The reference points' detail terms D_c[r](ω) (`prt_data`) at unit directions.
+
+    Parameters
+    ----------
+    codes : (R, D) int8
+    colour : (R, 3) int8
+    scale : (D,) float32
+    order : int
+        D = order².
+    directions : (K, 3)
+
+    Returns
+    -------
+    (3, R, K) float64
+    """
+    y = sh_basis(np.asarray(directions, dtype=np.float64), order) * np.asarray(scale, dtype=np.float64)  # (K, D)
+    shape = codes.astype(np.float64) @ y.T / 127.0  # (R, K)
+    return colour.T.astype(np.float64)[:, :, None] / 127.0 * shape[None]
 
 
 def reference_tables(ref_codes: np.ndarray, lut: np.ndarray, ref_scale: np.ndarray) -> np.ndarray:
@@ -130,6 +162,8 @@ def bytes_per_vertex(prt: PrtData) -> dict[str, float]:
         "directionNeighbours": _index_bytes(prt.direction_neighbours),
         "lut": 4 * prt.lut.size,
         "dqScale": 4 * prt.dq_scale.size,
+        "refDetail": prt.detail_codes.size + prt.detail_colour.size if prt.detail_order else 0,
+        "detailScale": 4 * prt.detail_scale.size,
     }
     out = {**per_vertex, **{key: value / n for key, value in tables.items()}}
     out["per_vertex"] = sum(per_vertex.values())

@@ -109,6 +109,11 @@ def prt_tables(prt: PrtData) -> dict:
         out["refTriangles"] = index_table(prt.ref_triangles)
         if channels == 1:
             out["refScale"] = prt.ref_scale.astype(np.float32)
+        if prt.detail_order:
+            out["detailOrder"] = int(prt.detail_order)
+            # per point its colour codes, then its SH codes: one row of order² + 3 int8
+            out["refDetail"] = np.concatenate([prt.detail_colour, prt.detail_codes], axis=1).astype(np.int8).reshape(-1)
+            out["detailScale"] = prt.detail_scale.astype(np.float32)
     if prt.sh_order:
         out["dqScale"] = np.ascontiguousarray(prt.dq_scale.T.astype(np.float32))
     return out
@@ -154,6 +159,13 @@ def prt_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> PrtData:
     r = int(tables["referencePointCount"])
     channels = int(tables["tableChannels"])
     ref_scale = np.zeros((0, 3), dtype=np.float32)
+    detail_order = int(tables.get("detailOrder", 0))
+    d = detail_order * detail_order
+    detail = np.zeros((0, d + 3), dtype=np.int8)
+    detail_scale = np.zeros(d, dtype=np.float32)
+    if detail_order:
+        detail = np.rint(np.asarray(tables["refDetail"], dtype=np.float64)).astype(np.int8).reshape(r, d + 3)
+        detail_scale = np.asarray(tables["detailScale"], dtype=np.float32).reshape(d)
     if r:
         ref_codes = np.asarray(tables["refCodes"], dtype=np.uint8).reshape(r, k, channels)
         ref_triangles = np.asarray(tables["refTriangles"]).astype(np.int32).reshape(-1, 3)
@@ -181,4 +193,8 @@ def prt_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> PrtData:
         dq_scale=dq_scale,
         sh_order=order,
         eta=float(tables["eta"]),
+        detail_order=detail_order,
+        detail_codes=np.ascontiguousarray(detail[:, 3:]),
+        detail_colour=np.ascontiguousarray(detail[:, :3]),
+        detail_scale=detail_scale,
     )

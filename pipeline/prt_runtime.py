@@ -36,7 +36,6 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
     import moderngl
 
     k = len(prt.directions)
-    c = prt.sh_order**2
     limit = ctx.info["GL_MAX_TEXTURE_SIZE"]
     tables = {
         # shared tables: one code per texel (R8UI); RGB: three (RGBA8UI)
@@ -49,6 +48,8 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
         "u_prt_dir_neigh": (_pad4(prt.direction_neighbours, np.int32), "i4"),
         "u_prt_dir_inv": (_pad4(prt.direction_inverse.reshape(-1, 3), np.float32), "f4"),
         "u_prt_dq": (prt.dq_codes.reshape(-1, 1).astype(np.int32), "i4"),
+        "u_prt_detail": (np.concatenate([prt.detail_colour, prt.detail_codes], axis=1).reshape(-1, 1).astype(np.int32),
+                         "i4"),
     }
     textures = []
     unit = 0
@@ -70,16 +71,18 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
         "u_prt_refs": len(prt.ref_codes),
         "u_prt_ref_channels": int(prt.ref_codes.shape[2]),
         "u_prt_order": prt.sh_order,
+        "u_prt_detail_order": prt.detail_order,
         "u_prt_weight_scale": float(prt.weight_scale),
         "u_prt_lookup_size": int(prt.direction_lookup.shape[0]),
     }
     for name, value in uniforms.items():
         if name in program:
             program[name].value = value
-    if c and "u_prt_dq_scale" in program:
-        scale = np.zeros(program["u_prt_dq_scale"].array_length, dtype=np.float32)
-        scale[: 3 * c] = prt.dq_scale.reshape(-1)
-        program["u_prt_dq_scale"].write(scale.tobytes())
+    for name, values in (("u_prt_dq_scale", prt.dq_scale), ("u_prt_detail_scale", prt.detail_scale)):
+        if values.size and name in program:
+            scale = np.zeros(program[name].array_length, dtype=np.float32)
+            scale[: values.size] = values.reshape(-1)
+            program[name].write(scale.tobytes())
     return textures
 
 

@@ -49,6 +49,7 @@ def bake_prt(surface: Surface, mm_per_unit: float, material: Material, direction
         "mode": compress.mode,
         "referencePoints": int(len(prt.ref_codes)),
         "shOrder": prt.sh_order,
+        "detailOrder": prt.detail_order,
         "weights": compress.weights,
         "tables": compress.tables,
         "refine": compress.refine,

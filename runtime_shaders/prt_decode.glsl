@@ -1,5 +1,6 @@
 // Decoding of the prt data (Hao & Varshney 2004) exactly as pipeline/prt_data.py states it:
 //   q_c(w) = sum_k w_k T_c[r_k](w) + sum_i dq_c,i y_i(w)
+// (shared tables: T_c[r] includes the point's detail term, SH evaluated at w itself)
 // Tables are 2-D textures holding a linear index i at texel (i % width, i / width)
 // (pipeline/prt_runtime.py `upload` makes them). Define PRT_COMPACT for data with 8-bit weights
 // (pipeline/prt_layout.py: one VEC4 uint8 attribute instead of two).
@@ -28,6 +29,10 @@ uniform int u_prt_order;
 uniform float u_prt_weight_scale;
 uniform int u_prt_lookup_size;
 uniform float u_prt_dq_scale[3 * SH_MAX_ORDER * SH_MAX_ORDER];  // [c * C + i]
+
+uniform int u_prt_detail_order;       // SH order of the reference points' detail terms (0: none)
+uniform float u_prt_detail_scale[SH_MAX_ORDER * SH_MAX_ORDER];
+uniform isampler2D u_prt_detail;      // R32I: (r * (D + 3) + j) -> colour codes (j < 3), then SH codes
 
 uniform usampler2D u_prt_ref_codes;   // RGBA8UI / R8UI: (r * K + a) -> codes of the 3 channels / the shape
 uniform sampler2D u_prt_ref_scale;    // RGBA32F: r -> colour of point r's shape (shared tables)
@@ -119,6 +124,12 @@ vec3 prt_decode(int vertex, vec3 w) {
         vec2 w01 = codes / PRT_WEIGHT_MAX * u_prt_weight_scale;
         vec3 weights = vec3(w01, 1.0 - w01.x - w01.y);
         ivec3 refs = prt_fetch_i(u_prt_ref_tris, triangle).xyz;
+        float yd[SH_MAX_ORDER * SH_MAX_ORDER];
+        int detail = u_prt_detail_order * u_prt_detail_order;
+        if (detail > 0) {
+            sh_basis(w, u_prt_detail_order, yd);
+            for (int i = 0; i < detail; ++i) yd[i] *= u_prt_detail_scale[i] / 127.0;
+        }
         for (int k = 0; k < 3; ++k) {
             vec3 table = vec3(0.0);
             // the LUT is one row of 256 texels
@@ -128,6 +139,18 @@ vec3 prt_decode(int vertex, vec3 w) {
                     table += beta[a] * texelFetch(u_prt_lut, ivec2(code, 0), 0).rgb;
                 }
                 table *= prt_fetch_f(u_prt_ref_scale, refs[k]).rgb;
+                if (detail > 0) {  // colour codes, then SH codes, consecutive per point
+                    int width = textureSize(u_prt_detail, 0).x;
+                    ivec2 texel = prt_texel(refs[k] * (detail + 3), width);
+                    vec3 colour;
+                    float shape = 0.0;
+                    for (int j = 0; j < detail + 3; ++j) {
+                        float code = float(texelFetch(u_prt_detail, texel, 0).x);
+                        if (j < 3) colour[j] = code; else shape += code * yd[j - 3];
+                        texel = texel.x + 1 == width ? ivec2(0, texel.y + 1) : texel + ivec2(1, 0);
+                    }
+                    table += colour / 127.0 * shape;
+                }
             } else {
                 for (int a = 0; a < 3; ++a) {
                     ivec3 code = ivec3(prt_fetch_u(u_prt_ref_codes, refs[k] * u_prt_k + dirs[a]).rgb);

@@ -10,7 +10,8 @@ import trimesh
 from sssbake.pipeline.clean import area_weighted_normals
 from sssbake.pipeline.directions import direction_set, interpolation_weights
 from sssbake.pipeline.prt_compress import PrtCompressOptions, compress_prt
-from sssbake.pipeline.prt_decode import bytes_per_vertex, decode_at_directions, evaluate
+from sssbake.pipeline.prt_decode import (blend, bytes_per_vertex, decode_at_directions, decode_weights, evaluate,
+                                         reference_detail)
 from sssbake.pipeline.sh import sh_basis, sh_fit_matrix
 
 
@@ -83,7 +84,7 @@ def test_shared_tables_fit_at_least_as_well_as_the_best_rank_one_table(torus):
     # channels whose shapes differ: one a power of another (a wider or narrower lobe), or leaning
     powered = q[1:2] ** np.array([0.8, 1.0, 1.25])[:, None, None]
     mixed = q * (1.0 + 0.2 * np.arange(3)[:, None, None] * ds.directions[None, None, :, 2])
-    options = PrtCompressOptions(reference_fraction=1.0, refine=0.0)
+    options = PrtCompressOptions(reference_fraction=1.0, refine=0.0, detail_order=0)
     errors = {}
     for name, signal in (("separable", separable), ("powered", powered), ("mixed", mixed)):
         shared = compress_prt(signal, ds, v, f, 1.3, options)
@@ -101,7 +102,32 @@ def test_shared_tables_fit_at_least_as_well_as_the_best_rank_one_table(torus):
     floor, rms = errors["powered"]
     assert floor > 1e-2 and rms < 0.2 * floor, errors
     rgb = compress_prt(separable, ds, v, f, 1.3, replace(options, tables="rgb"))
-    assert rgb.ref_codes.shape[2] == 3 and len(rgb.ref_scale) == 0
+    assert rgb.ref_codes.shape[2] == 3 and len(rgb.ref_scale) == 0 and rgb.detail_order == 0
+
+
+def test_detail_terms_reach_below_the_rank_one_floor(torus):
+    v, f, ds, q = torus
+    # channels whose lobes differ smoothly in direction: what one shape per point misses
+    mixed = q * (1.0 + 0.4 * np.arange(3)[:, None, None] * ds.directions[None, None, :, 2])
+    options = PrtCompressOptions(reference_fraction=1.0, refine=0.0, detail_order=0)
+    plain = compress_prt(mixed, ds, v, f, 1.3, options)
+    errors = []
+    for order in (1, 2, 3):
+        prt = compress_prt(mixed, ds, v, f, 1.3, replace(options, detail_order=order))
+        assert prt.detail_codes.shape == (len(v), order * order) and prt.detail_colour.shape == (len(v), 3)
+        errors.append(np.sqrt(np.mean((decode_at_directions(prt) - mixed) ** 2)))
+        # the detail term is part of the table at every direction, and costs order² + 3 bytes per point
+        extra = bytes_per_vertex(prt)["total"] - bytes_per_vertex(plain)["total"]
+        assert extra == pytest.approx((len(v) * (order * order + 3) + 4 * order * order) / len(v))
+        # at the set's own directions evaluate() (detail at ω itself) agrees with the tables
+        np.testing.assert_allclose(evaluate(prt, ds.directions[7].astype(np.float64)),
+                                   decode_at_directions(prt)[:, :, 7], rtol=1e-4, atol=1e-6 * mixed.max())
+    floor = np.sqrt(np.mean((decode_at_directions(plain) - mixed) ** 2))
+    assert errors[0] < floor and errors[2] < 0.5 * floor, (floor, errors)
+    assert errors[1] <= errors[0] * 1.01 and errors[2] <= errors[1] * 1.01
+    # orders above what K directions determine are lowered to what they do
+    tiny = compress_prt(mixed[:, :, :9], direction_set(9), v, f, 1.3, replace(options, detail_order=4))
+    assert tiny.detail_order == 3
 
 
 def test_sh_codes_are_within_half_a_code_of_the_residual(torus):
@@ -141,11 +167,21 @@ def test_evaluate_follows_the_runtime_interpolation(torus):
     coeffs = prt.dq_codes / 127.0 * prt.dq_scale.astype(np.float64)
     sh_part = np.einsum("nci,ni->cn", coeffs, basis)
     sh_at_set = np.einsum("nci,ki->cnk", coeffs, sh_basis(ds.directions, 2))
-    table_part = np.einsum("cnk,nk->cn", np.take_along_axis(decoded - sh_at_set, index[None], axis=2), beta)
-    np.testing.assert_allclose(evaluate(prt, w), table_part + sh_part, rtol=1e-5, atol=1e-7)
+    # the reference points' detail terms are evaluated at ω itself, not interpolated
+    assert prt.detail_order == 4
+    weights = decode_weights(prt.weight_codes, prt.weight_scale, prt.weight_bits)
+    corners = prt.ref_triangles[prt.vertex_triangle]
+    detail = (prt.detail_codes, prt.detail_colour, prt.detail_scale, prt.detail_order)
+    at_set = reference_detail(*detail, ds.directions)
+    detail_at_set = np.stack([blend(weights, at_set[c], corners) for c in range(3)])
+    at_w = reference_detail(*detail, w / np.linalg.norm(w, axis=1, keepdims=True))  # (3, R, n): column v for vertex v
+    detail_part = sum(weights[:, k] * at_w[:, corners[:, k], np.arange(len(v))] for k in range(3))
+    table_part = np.einsum("cnk,nk->cn", np.take_along_axis(decoded - sh_at_set - detail_at_set, index[None], axis=2),
+                           beta)
+    np.testing.assert_allclose(evaluate(prt, w), table_part + sh_part + detail_part, rtol=1e-5, atol=1e-7)
     # a subset of vertices
     some = np.array([3, 100, 5])
-    np.testing.assert_allclose(evaluate(prt, w[some], vertices=some), (table_part + sh_part)[:, some],
+    np.testing.assert_allclose(evaluate(prt, w[some], vertices=some), (table_part + sh_part + detail_part)[:, some],
                                rtol=1e-5, atol=1e-7)
 
 
@@ -165,7 +201,9 @@ def test_bytes_per_vertex_matches_a_hand_count(torus):
               + t * 9 * 4        # inverses, float32
               + 16 * 16 * 2      # lookup, uint16
               + 3 * 256 * 4      # levels per channel, float32
-              + 3 * 9 * 4)       # Δq scales, float32
+              + 3 * 9 * 4        # Δq scales, float32
+              + r * (16 + 3)     # detail codes (order 4) and colours, int8
+              + 16 * 4)          # detail scales, float32
     assert b["total"] == pytest.approx(32 + tables / n)
     assert b["refCodes"] == pytest.approx(r * k / n)
     rgb = bytes_per_vertex(compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_count=40, sh_order=3,
@@ -198,8 +236,8 @@ def test_a_byte_budget_sets_the_reference_count(torus):
     for budget, order in ((40.0, 0), (60.0, 2)):
         prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=budget, sh_order=order))
         total = bytes_per_vertex(prt)["total"]
-        # one more point would not fit (a point: 48 codes, a colour, two uint16 triangles)
-        assert budget - (48 + 12 + 12) / len(v) < total <= budget, (budget, total)
+        # one more point would not fit (a point: 48 codes, a colour, two uint16 triangles, 19 detail bytes)
+        assert budget - (48 + 12 + 12 + 19) / len(v) < total <= budget, (budget, total)
     small = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=20.0))
     assert len(small.ref_codes) < len(prt.ref_codes)
     # 640 vertices: the fixed direction tables alone cost ~19 B/vertex
@@ -213,7 +251,7 @@ def test_degenerate_signals_stay_finite(torus):
         for options in (PrtCompressOptions(reference_count=30, sh_order=2, weights="best_fit"),
                         PrtCompressOptions(mode="sh", sh_order=2), PrtCompressOptions(mode="lloyd")):
             prt = compress_prt(q, ds, v, f, 1.3, options)
-            assert all(np.all(np.isfinite(getattr(prt, name))) for name in ("lut", "dq_scale"))
+            assert all(np.all(np.isfinite(getattr(prt, name))) for name in ("lut", "dq_scale", "detail_scale"))
             np.testing.assert_allclose(decode_at_directions(prt), q, atol=1e-6)
 
 

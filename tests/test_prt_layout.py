@@ -19,12 +19,13 @@ from test_gltf import icosphere_asset
 
 
 def random_prt(n: int, k: int = 14, refs: int = 9, order: int = 3, seed: int = 0, channels: int = 3,
-               weight_bits: int = 16) -> PrtData:
+               weight_bits: int = 16, detail_order: int = 0) -> PrtData:
     """Codes and tables of the right dtypes and shapes with random contents (decode is not the point);
-    RGB (`channels` 3) or shared (1) reference tables, 16- or 8-bit weights."""
+    RGB (`channels` 3) or shared (1) reference tables, 16- or 8-bit weights, detail terms (shared)."""
     rng = np.random.default_rng(seed)
     top = (1 << (weight_bits - 1)) - 1
     c = order * order
+    d = detail_order * detail_order
     return PrtData(
         directions=rng.normal(size=(k, 3)).astype(np.float32),
         direction_triangles=rng.integers(0, k, (2 * k - 4, 3)).astype(np.int32),
@@ -45,6 +46,10 @@ def random_prt(n: int, k: int = 14, refs: int = 9, order: int = 3, seed: int = 0
         dq_scale=rng.random((3, c)).astype(np.float32),
         sh_order=order,
         eta=1.3,
+        detail_order=detail_order,
+        detail_codes=rng.integers(-127, 128, (refs if d else 0, d)).astype(np.int8),
+        detail_colour=rng.integers(-127, 128, (refs if d else 0, 3)).astype(np.int8),
+        detail_scale=rng.random(d).astype(np.float32),
     )
 
 
@@ -58,18 +63,20 @@ def prt_asset(prt: PrtData):
 
 def assert_same(a: PrtData, b: PrtData) -> None:
     for field in ("directions", "direction_triangles", "direction_inverse", "direction_lookup", "direction_neighbours", "lut", "ref_codes",
-                  "ref_scale", "ref_triangles", "vertex_triangle", "weight_codes", "dq_codes", "dq_scale"):
+                  "ref_scale", "ref_triangles", "vertex_triangle", "weight_codes", "dq_codes", "dq_scale",
+                  "detail_codes", "detail_colour", "detail_scale"):
         x, y = getattr(a, field), getattr(b, field)
         assert x.dtype == y.dtype and x.shape == y.shape, field
         np.testing.assert_array_equal(x, y, err_msg=field)
-    assert (a.weight_scale, a.weight_bits, a.sh_order, a.eta) == (b.weight_scale, b.weight_bits, b.sh_order, b.eta)
+    assert (a.weight_scale, a.weight_bits, a.sh_order, a.eta, a.detail_order) == \
+        (b.weight_scale, b.weight_bits, b.sh_order, b.eta, b.detail_order)
 
 
-@pytest.mark.parametrize("refs, order, channels, bits", [(9, 3, 3, 16), (0, 8, 3, 16), (5, 0, 3, 16), (7, 2, 1, 8),
-                                                        (6, 0, 1, 8)])
-def test_glb_and_usd_round_trip_exactly(tmp_path, refs, order, channels, bits):
+@pytest.mark.parametrize("refs, order, channels, bits, detail", [(9, 3, 3, 16, 0), (0, 8, 3, 16, 0), (5, 0, 3, 16, 0),
+                                                                (7, 2, 1, 8, 0), (6, 0, 1, 8, 4), (8, 1, 1, 16, 2)])
+def test_glb_and_usd_round_trip_exactly(tmp_path, refs, order, channels, bits, detail):
     n = len(icosphere_asset().scene.meshes[0].primitives[0].positions)
-    prt = random_prt(n, refs=refs, order=order, channels=channels, weight_bits=bits)
+    prt = random_prt(n, refs=refs, order=order, channels=channels, weight_bits=bits, detail_order=detail)
     asset = prt_asset(prt)
     write_glb(asset, tmp_path / "a.glb")
     write_usdc(asset, tmp_path / "a.usdc")
@@ -108,8 +115,8 @@ def test_prt_extras_match_the_documented_schema():
     schema = json.loads(resources.files("sssbake.exporters").joinpath("schema/sssbake.schema.json").read_text())
     n = len(icosphere_asset().scene.meshes[0].primitives[0].positions)
     sub = {"$schema": schema["$schema"], "$defs": schema["$defs"]}
-    for channels, bits in ((1, 8), (3, 16)):
-        prt = random_prt(n, channels=channels, weight_bits=bits)
+    for channels, bits, detail in ((1, 8, 4), (3, 16, 0)):
+        prt = random_prt(n, channels=channels, weight_bits=bits, detail_order=detail)
         gltf = pygltflib.GLTF2.load_from_bytes(to_glb(prt_asset(prt))[0])
         mesh = gltf.meshes[0].extras["sssbake"]
         jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(mesh)
