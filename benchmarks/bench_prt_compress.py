@@ -6,7 +6,8 @@
 Settings by name (`CONFIGS`): ``old`` (the defaults before shared tables, refinement and 8-bit
 weights), ``default``, ``paper`` (3 % reference points, SH order 3, barycentric weights), one
 change from ``old`` at a time at about its bytes (``shared``, ``refine``, ``w8``), the reference
-fraction around the default and above it, ``budget20`` (a 20 B/vertex byte budget), and ``floor`` /
+fraction around the default and above it, ``budget20`` (a 20 B/vertex byte budget), ``detail4``
+and ``detail4-budget20`` (a detail term of SH order 4 per reference point), and ``floor`` /
 ``floor-rgb`` (every vertex a reference point: what the table coding alone costs in error).
 
 q comes from `precompute_prt` for the Stanford bunny (../shared/assets/stanford_bunny/bunny.ply,
@@ -58,6 +59,9 @@ CONFIGS = {
     "shared+refine": PrtCompressOptions(reference_fraction=0.05, refine=0.6, weight_bits=16),
     **{f"default{p}%": replace(PRT_COMPRESS_DEFAULTS, reference_fraction=p / 100) for p in (6, 6.5, 7, 7.5, 15, 30)},
     "budget20": replace(PRT_COMPRESS_DEFAULTS, byte_budget=20.0),
+    # a detail term per reference point at about the default's bytes (for dense meshes)
+    "detail4": replace(PRT_COMPRESS_DEFAULTS, detail_order=4, reference_fraction=0.06),
+    "detail4-budget20": replace(PRT_COMPRESS_DEFAULTS, detail_order=4, byte_budget=20.0),
     # every vertex a reference point: the floor of the table coding alone
     "floor": replace(PRT_COMPRESS_DEFAULTS, reference_fraction=1.0, refine=0.0),
     "floor-rgb": replace(PRT_COMPRESS_DEFAULTS, reference_fraction=1.0, refine=0.0, tables="rgb"),

@@ -85,7 +85,9 @@ class PrtCompressOptions:
         marble teapot after three Loop subdivisions (203k vertices) that floor is 2.1e-3 image
         RMSE even with every vertex a reference point; order 4 at 6 % reference points gives
         1.5e-3 at 18.7 B/vertex, against 2.45e-3 without it at 6.5 % (same bytes). On the 50k
-        dragon, whose error is the interpolation between points, it neither gains nor loses.
+        dragon and the bunny, whose error is the interpolation between points, it gains nothing
+        (bunny: 3 % worse at the same bytes) and doubles the vertex shader's time on llvmpipe
+        (dragon at 512²: 158 ms against 78 ms), hence off by default: turn it on for dense meshes.
     refine : float
         Share of the reference points (``refs+sh``) added where the fit is worst
         (`refine_reference_points`) after simplification placed the rest, in [0, 1).
@@ -98,7 +100,7 @@ class PrtCompressOptions:
     """
 
     mode: str = "refs+sh"
-    reference_fraction: float = 0.06
+    reference_fraction: float = 0.065
     sh_order: int = 0
     weights: str = "best_fit"
     dq_percentile: float | None = None
@@ -109,7 +111,7 @@ class PrtCompressOptions:
     refine: float = 0.6
     weight_bits: int = 8
     reference_floor: int = 256
-    detail_order: int = 4
+    detail_order: int = 0
 
 
 PRT_COMPRESS_DEFAULTS = PrtCompressOptions()

@@ -25,9 +25,10 @@ def per_vertex_arrays(prt: PrtData) -> list[tuple[np.ndarray, str, str]]:
 
 
 def shader_defines(prt: PrtData) -> str:
-    """The ``#define`` lines ``prt_decode.glsl`` needs for `prt`: its SH order (a variant per order,
-    see the shader) and PRT_COMPACT for 8-bit weights."""
-    return f"#define PRT_SH_ORDER {prt.sh_order}\n" + ("#define PRT_COMPACT\n" if prt.weight_bits == 8 else "")
+    """The ``#define`` lines ``prt_decode.glsl`` needs for `prt`: its SH and detail orders (a
+    variant per order, see the shader) and PRT_COMPACT for 8-bit weights."""
+    return (f"#define PRT_SH_ORDER {prt.sh_order}\n#define PRT_DETAIL_ORDER {prt.detail_order}\n"
+            + ("#define PRT_COMPACT\n" if prt.weight_bits == 8 else ""))
 
 
 def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
@@ -48,8 +49,7 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
         "u_prt_dir_neigh": (_pad4(prt.direction_neighbours, np.int32), "i4"),
         "u_prt_dir_inv": (_pad4(prt.direction_inverse.reshape(-1, 3), np.float32), "f4"),
         "u_prt_dq": (prt.dq_codes.reshape(-1, 1).astype(np.int32), "i4"),
-        "u_prt_detail": (np.concatenate([prt.detail_colour, prt.detail_codes], axis=1).reshape(-1, 1).astype(np.int32),
-                         "i4"),
+        "u_prt_detail": (_detail_rows(prt), "i1"),
     }
     textures = []
     unit = 0
@@ -84,6 +84,16 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
             scale[: values.size] = values.reshape(-1)
             program[name].write(scale.tobytes())
     return textures
+
+
+def _detail_rows(prt: PrtData) -> np.ndarray:
+    """(R · ceil((D + 3) / 4), 4) int8: per reference point its colour codes, then its detail SH
+    codes, zero-padded to whole texels."""
+    row = np.concatenate([prt.detail_colour, prt.detail_codes], axis=1)
+    width = 4 * -(-row.shape[1] // 4)
+    padded = np.zeros((len(row), width), dtype=np.int8)
+    padded[:, : row.shape[1]] = row
+    return padded.reshape(-1, 4)
 
 
 def _pad4(rows: np.ndarray, dtype) -> np.ndarray:

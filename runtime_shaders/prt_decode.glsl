@@ -30,9 +30,18 @@ uniform float u_prt_weight_scale;
 uniform int u_prt_lookup_size;
 uniform float u_prt_dq_scale[3 * SH_MAX_ORDER * SH_MAX_ORDER];  // [c * C + i]
 
-uniform int u_prt_detail_order;       // SH order of the reference points' detail terms (0: none)
+// SH order of the reference points' detail terms (0: none); PRT_DETAIL_ORDER compiles a variant
+// for one order, as PRT_SH_ORDER does.
+#ifdef PRT_DETAIL_ORDER
+const int prt_detail_order = PRT_DETAIL_ORDER;
+#else
+uniform int u_prt_detail_order;
+#define prt_detail_order u_prt_detail_order
+#endif
 uniform float u_prt_detail_scale[SH_MAX_ORDER * SH_MAX_ORDER];
-uniform isampler2D u_prt_detail;      // R32I: (r * (D + 3) + j) -> colour codes (j < 3), then SH codes
+// RGBA8I: point r's 3 colour codes, then its D² SH codes, four per texel from texel
+// r * ceil((D² + 3) / 4) on (fewer fetches than one code per texel)
+uniform isampler2D u_prt_detail;
 
 uniform usampler2D u_prt_ref_codes;   // RGBA8UI / R8UI: (r * K + a) -> codes of the 3 channels / the shape
 uniform sampler2D u_prt_ref_scale;    // RGBA32F: r -> colour of point r's shape (shared tables)
@@ -125,9 +134,9 @@ vec3 prt_decode(int vertex, vec3 w) {
         vec3 weights = vec3(w01, 1.0 - w01.x - w01.y);
         ivec3 refs = prt_fetch_i(u_prt_ref_tris, triangle).xyz;
         float yd[SH_MAX_ORDER * SH_MAX_ORDER];
-        int detail = u_prt_detail_order * u_prt_detail_order;
+        int detail = prt_detail_order * prt_detail_order;
         if (detail > 0) {
-            sh_basis(w, u_prt_detail_order, yd);
+            sh_basis(w, prt_detail_order, yd);
             for (int i = 0; i < detail; ++i) yd[i] *= u_prt_detail_scale[i] / 127.0;
         }
         for (int k = 0; k < 3; ++k) {
@@ -139,17 +148,21 @@ vec3 prt_decode(int vertex, vec3 w) {
                     table += beta[a] * texelFetch(u_prt_lut, ivec2(code, 0), 0).rgb;
                 }
                 table *= prt_fetch_f(u_prt_ref_scale, refs[k]).rgb;
-                if (detail > 0) {  // colour codes, then SH codes, consecutive per point
+                if (detail > 0) {
                     int width = textureSize(u_prt_detail, 0).x;
-                    ivec2 texel = prt_texel(refs[k] * (detail + 3), width);
-                    vec3 colour;
-                    float shape = 0.0;
-                    for (int j = 0; j < detail + 3; ++j) {
-                        float code = float(texelFetch(u_prt_detail, texel, 0).x);
-                        if (j < 3) colour[j] = code; else shape += code * yd[j - 3];
+                    int texels = (detail + 6) / 4;
+                    ivec2 texel = prt_texel(refs[k] * texels, width);
+                    vec4 first = vec4(texelFetch(u_prt_detail, texel, 0));
+                    float shape = first.w * yd[0];
+                    for (int t = 1; t < texels; ++t) {
                         texel = texel.x + 1 == width ? ivec2(0, texel.y + 1) : texel + ivec2(1, 0);
+                        vec4 code = vec4(texelFetch(u_prt_detail, texel, 0));
+                        for (int j = 0; j < 4; ++j) {
+                            int i = 4 * t + j - 3;
+                            if (i < detail) shape += code[j] * yd[i];
+                        }
                     }
-                    table += colour / 127.0 * shape;
+                    table += first.xyz / 127.0 * shape;
                 }
             } else {
                 for (int a = 0; a < 3; ++a) {

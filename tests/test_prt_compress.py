@@ -156,7 +156,8 @@ def test_band_limited_q_is_coded_by_sh_alone(torus):
 
 def test_evaluate_follows_the_runtime_interpolation(torus):
     v, f, ds, q = torus
-    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_count=60, sh_order=2, weights="best_fit"))
+    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_count=60, sh_order=2, weights="best_fit",
+                                                            detail_order=4))
     decoded = decode_at_directions(prt)
     for j in (0, 17, 47):  # at the set's directions: the tables' own values
         np.testing.assert_allclose(evaluate(prt, ds.directions[j]), decoded[:, :, j], rtol=1e-5, atol=1e-7)
@@ -187,7 +188,7 @@ def test_evaluate_follows_the_runtime_interpolation(torus):
 
 def test_bytes_per_vertex_matches_a_hand_count(torus):
     v, f, ds, q = torus
-    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_count=40, sh_order=3))
+    prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_count=40, sh_order=3, detail_order=4))
     n, k, r, fr = len(v), 48, len(prt.ref_codes), len(prt.ref_triangles)
     t = 2 * k - 4
     b = bytes_per_vertex(prt)
@@ -234,7 +235,7 @@ def test_weights_take_16_bits_beyond_65536_reference_triangles():
 def test_a_byte_budget_sets_the_reference_count(torus):
     v, f, ds, q = torus
     for budget, order in ((40.0, 0), (60.0, 2)):
-        prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=budget, sh_order=order))
+        prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=budget, sh_order=order, detail_order=4))
         total = bytes_per_vertex(prt)["total"]
         # one more point would not fit (a point: 48 codes, a colour, two uint16 triangles, 19 detail bytes)
         assert budget - (48 + 12 + 12 + 19) / len(v) < total <= budget, (budget, total)

@@ -63,12 +63,13 @@ def decode_on_gpu(ctx, prt, directions, dialect="glsl330", width=4096):
 @pytest.mark.parametrize("options", [PrtCompressOptions(sh_order=3, weights="least_squares"),
                                      PrtCompressOptions(sh_order=2, tables="rgb", weight_bits=16),
                                      PrtCompressOptions(),
+                                     PrtCompressOptions(detail_order=4, reference_fraction=0.3),
                                      PrtCompressOptions(mode="sh", sh_order=8, dq_percentile=100),
                                      PrtCompressOptions(mode="lloyd")])
 def test_glsl_decode_matches_numpy(ctx, blob, dialect, options):
     v, f, ds, q = blob
     prt = compress_prt(q, ds, v, f, 1.3, options)
-    assert prt.detail_order == (4 if options.mode == "refs+sh" and options.tables == "shared" else 0)
+    assert prt.detail_order == (options.detail_order if options.mode == "refs+sh" and options.tables == "shared" else 0)
     rng = np.random.default_rng(3)
     directions = rng.normal(size=(len(v), 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
