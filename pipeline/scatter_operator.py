@@ -494,6 +494,9 @@ class _Builder:
                 data[at:at + len(col)] = value
                 at += len(col)
                 part[c] = None
+            # The copied parts, before the next channel's pages are touched: at 150k vertices
+            # the build's peak is 0.2 GB lower, for ~1 s of page faults.
+            release_freed_memory()
         indptr = np.r_[0, np.cumsum(counts)].astype(index_dtype)
         return sp.csr_matrix((data, indices, indptr), shape=(3 * t, width))
 
