@@ -23,7 +23,6 @@ the object's pixels. Skips meshes whose files are absent.
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -31,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from bench_prt_precompute import with_mesh  # this folder is on the path when run as a script
 from sssbake.pipeline.clean import clean_scene
 from sssbake.pipeline.directions import direction_set, interpolation_weights
 from sssbake.pipeline.load import load_scene
@@ -71,12 +71,11 @@ CONFIGS = {
 def load_q(name: str, k: int):
     """(surface, q (3, n, K)) with q cached in /tmp."""
     path, mm, subdivisions = MESHES[name]
-    surface = clean_scene(load_scene(str(ASSETS / path))).surfaces[0]
+    scene = load_scene(str(ASSETS / path))
+    surface = clean_scene(scene).surfaces[0]
     if subdivisions:
         x, f = trimesh.remesh.subdivide_loop(surface.positions, surface.faces, iterations=subdivisions)
-        smooth = Path(tempfile.mkdtemp()) / f"{name}.ply"
-        trimesh.Trimesh(x, f, process=False).export(smooth)
-        surface = clean_scene(load_scene(str(smooth))).surfaces[0]
+        surface = clean_scene(with_mesh(scene, x, f)).surfaces[0]
     ds = direction_set(k)
     cache = Path(f"/tmp/sssbake_bench_q_{name}_{len(surface.positions)}_{k}.npy")
     if cache.is_file():

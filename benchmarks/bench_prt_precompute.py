@@ -15,12 +15,11 @@ import argparse
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 import resource
-import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from scipy.spatial import cKDTree
 
 from sssbake.pipeline.clean import clean_scene
@@ -28,6 +27,7 @@ from sssbake.pipeline.directions import direction_set
 from sssbake.pipeline.load import load_scene
 from sssbake.pipeline.materials import preset
 from sssbake.pipeline.prt_precompute import precompute_prt
+from sssbake.pipeline.scene import Mesh, Primitive, Scene
 from sssbake.pipeline.simplify import simplify
 
 DRAGON = Path(__file__).resolve().parents[2] / "shared" / "assets" / "dragon"
@@ -35,13 +35,17 @@ SCALE_MM = 10.0
 
 
 def surface(name: str, vertices: int | None = None):
-    path = DRAGON / name
-    if vertices is not None:
-        s = clean_scene(load_scene(str(path))).surfaces[0]
-        simple = simplify(s.positions, s.faces, target_count=2 * vertices)
-        path = Path(tempfile.mkdtemp()) / f"{path.stem}_{vertices}.ply"
-        trimesh.Trimesh(simple.positions, simple.faces, process=False).export(path)
-    return clean_scene(load_scene(str(path))).surfaces[0]
+    scene = load_scene(str(DRAGON / name))
+    s = clean_scene(scene).surfaces[0]
+    if vertices is None:
+        return s
+    simple = simplify(s.positions, s.faces, target_count=2 * vertices)
+    return clean_scene(with_mesh(scene, simple.positions, simple.faces)).surfaces[0]
+
+
+def with_mesh(scene: Scene, positions: np.ndarray, faces: np.ndarray) -> Scene:
+    """`scene` with its one mesh replaced by a derived triangle list, for `clean_scene` as a bake does."""
+    return replace(scene, meshes=(Mesh(scene.meshes[0].name, (Primitive(positions, faces),)),))
 
 
 def timed_precompute(name: str, vertices: int | None, k: int) -> str:

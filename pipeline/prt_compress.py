@@ -84,7 +84,8 @@ class PrtCompressOptions:
         point cannot follow the channels' different shadow edges (red diffuses farther): on the
         marble teapot after three Loop subdivisions (203k vertices) that floor is 2.1e-3 image
         RMSE even with every vertex a reference point; order 4 at 6 % reference points gives
-        1.5e-3 at 18.7 B/vertex, against 2.45e-3 without it at 6.5 % (same bytes). On the 50k
+        1.5e-3 to 1.9e-3 at 18.7 B/vertex (the mesh built with float32 or float64 positions),
+        against 2.45e-3 to 2.48e-3 without it at 6.5 % (same bytes). On the 50k
         dragon and the bunny, whose error is the interpolation between points, it gains nothing
         (bunny: 3 % worse at the same bytes) and doubles the vertex shader's time on llvmpipe
         (dragon at 512²: 158 ms against 78 ms), hence off by default: turn it on for dense meshes.
@@ -219,13 +220,14 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
                 refs = refine_reference_points(positions, refs, q, count)
             ref_vertices, ref_triangles, vertex_triangle = refs.ref_vertices, refs.triangles, refs.vertex_triangle
             weights = refs.weights
+        at_refs = q[:, ref_vertices]
         if options.mode == "refs+sh" and options.tables == "shared":
-            ref_codes, lut, ref_scale = shared_tables(q[:, ref_vertices])
+            ref_codes, lut, ref_scale = shared_tables(at_refs)
         else:
-            ref_codes, lut, ref_scale = rgb_tables(q[:, ref_vertices])
+            ref_codes, lut, ref_scale = rgb_tables(at_refs)
         q_ref = reference_tables(ref_codes, lut, ref_scale)
         if detail_order:
-            detail = detail_tables(q[:, ref_vertices] - q_ref, directions.directions, detail_order)
+            detail = detail_tables(at_refs - q_ref, directions.directions, detail_order)
             q_ref += reference_detail(*detail, detail_order, directions.directions)
         if options.mode == "refs+sh" and options.weights == "least_squares":
             weights = least_squares_weights(q, q_ref, refs)

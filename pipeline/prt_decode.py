@@ -64,6 +64,7 @@ def evaluate(prt: PrtData, omega: np.ndarray, vertices: np.ndarray | None = None
     if omega.shape not in ((3,), (m, 3)):
         raise ValueError(f"prt decode: omega must be (3,) or ({m}, 3), got {omega.shape}")
     omega = np.broadcast_to(omega, (m, 3))
+    unit = omega / np.linalg.norm(omega, axis=1, keepdims=True)
     ds = DirectionSet(prt.directions.astype(np.float64), prt.direction_triangles.astype(np.int64),
                       prt.direction_inverse.astype(np.float64), prt.direction_lookup, prt.direction_neighbours)
     index, beta = lookup_weights(ds, omega)  # (m, 3) directions and their weights
@@ -72,7 +73,6 @@ def evaluate(prt: PrtData, omega: np.ndarray, vertices: np.ndarray | None = None
         w = decode_weights(prt.weight_codes[vertices], prt.weight_scale, prt.weight_bits)
         corners = prt.ref_triangles[prt.vertex_triangle[vertices]]
         tables = reference_tables(prt.ref_codes, prt.lut, prt.ref_scale)
-        unit = omega / np.linalg.norm(omega, axis=1, keepdims=True)
         if prt.detail_order:  # at ω itself: per vertex, each corner's detail shape
             y = sh_basis(unit, prt.detail_order) * prt.detail_scale.astype(np.float64)  # (m, D)
         for r in range(3):
@@ -84,7 +84,7 @@ def evaluate(prt: PrtData, omega: np.ndarray, vertices: np.ndarray | None = None
                 value = np.einsum("ma,ma->m", beta, table)
                 out[c] += w[:, r] * (value + detail[c] if prt.detail_order else value)
     if prt.sh_order:
-        basis = sh_basis(omega / np.linalg.norm(omega, axis=1, keepdims=True), prt.sh_order)  # (m, C)
+        basis = sh_basis(unit, prt.sh_order)  # (m, C)
         out += np.einsum("mci,mi->cm", decode_int8(prt.dq_codes[vertices], prt.dq_scale), basis)
     return out
 

@@ -72,6 +72,12 @@ def prt_vertex_attributes(prt: PrtData, vertices: np.ndarray) -> tuple[VertexAtt
     return tuple(out)
 
 
+def detail_rows(prt: PrtData) -> np.ndarray:
+    """(R, D + 3) int8: per reference point its detail colour codes, then its SH codes (the
+    layout of ``refDetail`` and of the runtime's detail texture)."""
+    return np.concatenate([prt.detail_colour, prt.detail_codes], axis=1).astype(np.int8)
+
+
 def index_table(values: np.ndarray) -> np.ndarray:
     """Non-negative indices as uint16 when they fit (the exporters store uint16 as is), else int64
     (stored as uint32)."""
@@ -111,8 +117,7 @@ def prt_tables(prt: PrtData) -> dict:
             out["refScale"] = prt.ref_scale.astype(np.float32)
         if prt.detail_order:
             out["detailOrder"] = int(prt.detail_order)
-            # per point its colour codes, then its SH codes: one row of order² + 3 int8
-            out["refDetail"] = np.concatenate([prt.detail_colour, prt.detail_codes], axis=1).astype(np.int8).reshape(-1)
+            out["refDetail"] = detail_rows(prt).reshape(-1)
             out["detailScale"] = prt.detail_scale.astype(np.float32)
     if prt.sh_order:
         out["dqScale"] = np.ascontiguousarray(prt.dq_scale.T.astype(np.float32))

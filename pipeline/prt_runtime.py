@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .prt_data import PrtData
+from .prt_layout import detail_rows
 
 #: Width of the wrapped 2-D layout of long tables (GL guarantees 4096-texel-wide textures... and
 #: far more on desktop; 4096 keeps ES 3.00's minimum of 2048 rows enough for 8M entries).
@@ -49,7 +50,7 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
         "u_prt_dir_neigh": (_pad4(prt.direction_neighbours, np.int32), "i4"),
         "u_prt_dir_inv": (_pad4(prt.direction_inverse.reshape(-1, 3), np.float32), "f4"),
         "u_prt_dq": (prt.dq_codes.reshape(-1, 1).astype(np.int32), "i4"),
-        "u_prt_detail": (_detail_rows(prt), "i1"),
+        "u_prt_detail": (_detail_texels(prt), "i1"),
     }
     textures = []
     unit = 0
@@ -86,10 +87,9 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
     return textures
 
 
-def _detail_rows(prt: PrtData) -> np.ndarray:
-    """(R · ceil((D + 3) / 4), 4) int8: per reference point its colour codes, then its detail SH
-    codes, zero-padded to whole texels."""
-    row = np.concatenate([prt.detail_colour, prt.detail_codes], axis=1)
+def _detail_texels(prt: PrtData) -> np.ndarray:
+    """(R · ceil((D + 3) / 4), 4) int8: `prt_layout.detail_rows` zero-padded to whole texels."""
+    row = detail_rows(prt)
     width = 4 * -(-row.shape[1] // 4)
     padded = np.zeros((len(row), width), dtype=np.int8)
     padded[:, : row.shape[1]] = row
