@@ -1,4 +1,5 @@
-"""What sssbake data a .glb holds: schema version, ``_`` attributes and their bytes, extensions."""
+"""What sssbake data a .glb holds: schema version, ``_`` attributes and technique tables with their
+bytes, extensions."""
 
 from __future__ import annotations
 
@@ -20,7 +21,10 @@ def inspect_glb(path: str | os.PathLike) -> dict:
         ``path``, ``bytes`` (file size), ``generator``, ``schemaVersion`` (of the root
         ``extras.sssbake``, None if absent), ``extensionsUsed``, ``extensionsRequired``,
         ``asset`` (the root ``extras.sssbake`` object or None), ``meshes``: per mesh ``name``,
-        ``sssbake`` (mesh ``extras.sssbake`` or None) and ``primitives``: per primitive
+        ``sssbake`` (mesh ``extras.sssbake`` or None), ``techniques`` {technique (``prt``,
+        ``kernels``, ...): {``bytes`` (all its tables), ``tables`` {key: {``accessor``,
+        ``count``, ``type``, ``componentType``, ``normalized``, ``bytes``}}}} and
+        ``primitives``: per primitive
         ``vertices``, ``material``, ``attributes`` {``_NAME``: {``count``, ``type``,
         ``componentType`` (name), ``normalized``, ``bytes``, ``bytesPerVertex``}} and
         ``bytesPerVertex`` (all ``_`` attributes); ``materials``: per material with
@@ -60,7 +64,9 @@ def inspect_glb(path: str | os.PathLike) -> dict:
                 "attributes": custom,
                 "bytesPerVertex": sum(a["bytes"] for a in custom.values()) / n if n else 0.0,
             })
-        meshes.append({"name": mesh.name, "sssbake": (mesh.extras or {}).get("sssbake"), "primitives": prims})
+        sssbake = (mesh.extras or {}).get("sssbake")
+        meshes.append({"name": mesh.name, "sssbake": sssbake, "techniques": _techniques(gltf, sssbake),
+                       "primitives": prims})
 
     materials = [
         {
@@ -86,6 +92,19 @@ def inspect_glb(path: str | os.PathLike) -> dict:
         "materials": materials,
         "bytesPerVertex": per_vertex,
     }
+
+
+def _techniques(gltf: g.GLTF2, sssbake: dict | None) -> dict:
+    """The tables ({"accessor": i} values) of each technique object in a mesh's ``extras.sssbake``."""
+    out = {}
+    for name, value in (sssbake or {}).items():
+        if not isinstance(value, dict):
+            continue
+        tables = {key: _accessor_info(gltf, ref["accessor"]) for key, ref in value.items()
+                  if isinstance(ref, dict) and "accessor" in ref}
+        if tables:
+            out[name] = {"bytes": sum(t["bytes"] for t in tables.values()), "tables": tables}
+    return out
 
 
 def _accessor_info(gltf: g.GLTF2, index: int) -> dict:

@@ -1,5 +1,5 @@
-"""What sssbake data a USD file holds: schema version, ``primvars:sss:*`` and their bytes, material
-``sss:`` attributes."""
+"""What sssbake data a USD file holds: schema version, ``primvars:sss:*`` and technique tables with
+their bytes, material ``sss:`` attributes."""
 
 from __future__ import annotations
 
@@ -25,7 +25,10 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
         ``upAxis``, ``metersPerUnit``, ``schemaVersion`` (the default prim's
         ``sss:schemaVersion``, None if absent), ``extras`` (its ``sss:extras`` JSON, parsed),
         ``meshes``: per Mesh prim ``path``, ``vertices`` (points), ``faces``, ``scaleMm``,
-        ``material`` (bound material path or None), ``primvars`` {``primvars:sss:<key>``:
+        ``material`` (bound material path or None), ``extras`` (its ``sss:extras`` JSON, parsed,
+        or None), ``techniques`` {technique (``prt``, ``kernels``, ...): {``bytes`` (all its
+        tables), ``tables`` {key: {``attribute``, ``type``, ``shape``, ``count`` (array
+        elements), ``bytes`` (as loaded)}}}}, ``primvars`` {``primvars:sss:<key>``:
         {``type``, ``interpolation``, ``elementSize``, ``count`` (array elements), ``bytes``
         (count × value bytes, as loaded), ``bytesPerVertex``, ``unit``, ``description``}} and
         ``bytesPerVertex`` (all ``primvars:sss:*``); ``materials``: per Material prim with
@@ -83,12 +86,16 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
             attr_bytes[name] = attr_bytes.get(name, 0) + int(array.nbytes)
             attr_vertices[name] = attr_vertices.get(name, 0) + n
         material = UsdShade.MaterialBindingAPI(prim).GetDirectBinding().GetMaterial()
+        mesh_extras = prim.GetAttribute(SSS + "extras").Get()
+        mesh_extras = json.loads(mesh_extras) if mesh_extras else None
         meshes.append({
             "path": str(prim.GetPath()),
             "vertices": n,
             "faces": len(counts) if counts is not None else 0,
             "scaleMm": prim.GetAttribute(SSS + "scaleMm").Get(),
             "material": str(material.GetPath()) if material else None,
+            "extras": mesh_extras,
+            "techniques": _techniques(prim, mesh_extras),
             "primvars": primvars,
             "bytesPerVertex": sum(p["bytes"] for p in primvars.values()) / n if n else 0.0,
         })
@@ -109,6 +116,25 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
         "materials": materials,
         "bytesPerVertex": per_vertex,
     }
+
+
+def _techniques(prim: Usd.Prim, extras: dict | None) -> dict:
+    """The tables ({"attribute": name, "shape": [...]} values) of each technique object in a Mesh
+    prim's ``sss:extras``."""
+    out = {}
+    for name, value in (extras or {}).items():
+        if not isinstance(value, dict):
+            continue
+        tables = {}
+        for key, ref in value.items():
+            if isinstance(ref, dict) and "attribute" in ref:
+                attribute = prim.GetAttribute(ref["attribute"])
+                array = np.asarray(attribute.Get())
+                tables[key] = {"attribute": ref["attribute"], "type": str(attribute.GetTypeName()),
+                               "shape": ref.get("shape"), "count": int(array.size), "bytes": int(array.nbytes)}
+        if tables:
+            out[name] = {"bytes": sum(t["bytes"] for t in tables.values()), "tables": tables}
+    return out
 
 
 def _sss_values(prim: Usd.Prim) -> dict:

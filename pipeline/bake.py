@@ -28,6 +28,8 @@ from .fallback import make_fallback
 from .load import AssetError, load_scene
 from .materials import Material
 from .options import BakeOptions
+from .kernels_layout import kernels_tables, kernels_vertex_attributes
+from .kernels_stage import bake_kernels
 from .prt_compress import PrtCompressOptions
 from .prt_layout import prt_tables, prt_vertex_attributes
 from .prt_stage import bake_prt
@@ -37,7 +39,7 @@ from .thickness import bake_thickness
 from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
-STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3}
+STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 1}
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
 
@@ -171,8 +173,11 @@ def bake_asset(
     if "prt" not in options.techniques:
         runner.skip("simplify", "no technique that needs reference points was requested")
         runner.skip("prt", "not requested (--techniques prt)")
+    if "kernels" not in options.techniques:
+        runner.skip("kernels", "not requested (--techniques kernels)")
     mesh_extras: dict[int, dict] = {}
     prt_reports: dict[str, dict] = {}
+    kernels_reports: dict[str, dict] = {}
 
     meshes = list(scene.meshes)
     images, textures = list(scene.images), list(scene.textures)
@@ -192,7 +197,7 @@ def bake_asset(
             continue
         mesh_key = stage_key(k_clean, "mesh", 0, {"mesh": mi})
         parts = [(p.positions, p.faces) for p in mesh.primitives]
-        atlas, _ = runner.run(
+        atlas, k_atlas = runner.run(
             "atlas", STAGE_VERSIONS["atlas"], mesh_key,
             {"resolution": options.atlas_resolution, "padding": options.atlas_padding},
             compute_atlas, parts, options.atlas_resolution, options.atlas_padding,
@@ -237,8 +242,27 @@ def bake_asset(
                 options.prt_energy_dropped, compress,
             )
             prt = baked.prt
-            mesh_extras[mi] = {"prt": prt_tables(prt)}
+            mesh_extras.setdefault(mi, {})["prt"] = prt_tables(prt)
             prt_reports[mesh.name] = baked.report
+        kernels = None
+        if "kernels" in options.techniques:
+            if len(mats) > 1:
+                warnings.append(f"mesh {mesh.name!r}: kernels needs one scattering material per mesh, it has "
+                                f"{len(mats)}; baked with {scene.materials[mats[0]].name!r}'s")
+            if options.atlas_padding < (options.kernels_size + 1) // 2:
+                warnings.append(f"mesh {mesh.name!r}: atlas_padding {options.atlas_padding} is below the "
+                                f"{(options.kernels_size + 1) // 2} texels a {options.kernels_size}-texel kernel "
+                                "reaches; kernels near chart edges see less of their neighbourhood")
+            baked_k, _ = runner.run(
+                "kernels", STAGE_VERSIONS["kernels"], k_atlas,
+                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "options": options.kernels().__dict__,
+                 "bits": options.kernels_bits},
+                bake_kernels, surface, atlas, [(p.positions, p.normals) for p in mesh.primitives], mesh_mm,
+                material_of[mats[0]], options.kernels(), options.kernels_bits,
+            )
+            kernels = baked_k.kernels
+            mesh_extras.setdefault(mi, {})["kernels"] = kernels_tables(kernels, options.kernels_bits)
+            kernels_reports[mesh.name] = baked_k.report
         tmax = max(float(tmap.image.max()), float(thick.thickness.max()), 1e-30)
         images.append(Image(f"{mesh.name}_thickness", "image/png", _png_gray(tmap.image / tmax)))
         textures.append(Texture(len(images) - 1, LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE, CLAMP_TO_EDGE))
@@ -261,6 +285,8 @@ def bake_asset(
                 )
                 if prt is not None:
                     attributes[(mi, pi)] += prt_vertex_attributes(prt, surface.weld[pi][vm])
+                if kernels is not None:
+                    attributes[(mi, pi)] += kernels_vertex_attributes(kernels, surface.weld[pi][vm])
         meshes[mi] = Mesh(mesh.name, tuple(prims))
         ref = TextureRef(len(textures) - 1, uv_set)
         for m in mats:
@@ -304,6 +330,7 @@ def bake_asset(
             "sizes": sizes,
             "atlas": atlases,
             "prt": prt_reports,
+            "kernels": kernels_reports,
             "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"}
                       for fmt, summary in (("glb", glb_summary), ("usdc", usd_summary))},
             "validation": validation,

@@ -11,6 +11,8 @@ import numpy as np
 
 from .config import EMPTY_CONFIG, ConfigError, load_config
 from .options import BAKE_DEFAULTS
+from .kernels_layout import KERNEL_BITS
+from .kernels_precompute import BLENDS, SEAMS
 from .prt_compress import MODES, TABLES, WEIGHT_BITS, WEIGHTS
 
 
@@ -33,7 +35,8 @@ def _bake(args) -> int:
         overrides["validate"] = False
     for name in ("techniques", "prt_directions", "prt_energy_dropped", "prt_mode", "prt_reference_fraction",
                  "prt_sh_order", "prt_weights", "prt_tables", "prt_refine",
-                 "prt_weight_bits", "prt_byte_budget", "prt_reference_floor", "prt_detail_order"):
+                 "prt_weight_bits", "prt_byte_budget", "prt_reference_floor", "prt_detail_order",
+                 "kernels_size", "kernels_threshold", "kernels_blend", "kernels_seams", "kernels_bits"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -100,7 +103,6 @@ def _verify(args) -> int:
 def _tradeoff(args) -> int:
     from .load import AssetError
     from .materials import MaterialError, material_from_spec
-    from .tradeoff import prt_tradeoff
 
     path = Path(args.input)
     try:
@@ -114,8 +116,17 @@ def _tradeoff(args) -> int:
             scale = 1000.0 * declared
         else:
             scale = args.scale_mm
-        result = prt_tradeoff(path, scale, material, args.out or path.parent, k=args.k, lights=args.lights,
-                              size=args.size)
+        out = args.out or path.parent
+        if args.technique == "prt":
+            from .tradeoff import prt_tradeoff
+
+            result = prt_tradeoff(path, scale, material, out, k=args.k, lights=args.lights, size=args.size)
+        else:
+            from .kernels_tradeoff import kernels_tradeoff
+
+            result = kernels_tradeoff(path, scale, material, out, resolutions=args.resolutions, sizes=args.sizes,
+                                      thresholds=args.thresholds, lights=args.lights, size=args.size,
+                                      resolution=args.atlas_resolution)
     except (OSError, ValueError, AssetError, MaterialError) as e:
         print(f"error: {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
         return 1
@@ -123,11 +134,26 @@ def _tradeoff(args) -> int:
         print(json.dumps(result))
     else:
         for r in result["rows"]:
-            print(f"{r['sweep']:>16} {r['mode']:>8} K={r['k']:<4} n={r['sh_order']} refs={r['reference_fraction']:<7g} "
-                  f"{r['weights']:<13} {r['bytes_per_vertex']:9.1f} B/vertex {r['seconds']:7.2f} s  RMSE {r['rmse_image']:.5f}")
-        print(f"frame {result['frame_ms_sss']:.2f} ms with prt, {result['frame_ms_plain']:.2f} ms without "
+            if args.technique == "prt":
+                knobs = (f"{r['mode']:>8} K={r['k']:<4} n={r['sh_order']} refs={r['reference_fraction']:<7g} "
+                         f"{r['weights']:<13}")
+            else:
+                knobs = (f"atlas={r['atlas_resolution']:<5} k={r['kernel_size']:<2} threshold={r['threshold']:<6g} "
+                         f"{r['blend']:<9} seams={r['seams']:<6}")
+            print(f"{r['sweep']:>16} {knobs} {r['bytes_per_vertex']:9.1f} B/vertex {r['seconds']:7.2f} s  "
+                  f"RMSE {r['rmse_image']:.5f}")
+        print(f"frame {result['frame_ms_sss']:.2f} ms with {args.technique}, {result['frame_ms_plain']:.2f} ms without "
               f"(ratio {result['frame_ratio']:.2f}); {result['outputs']['plot']}")
     return 0
+
+
+def _numbers(kind: type):
+    """An argparse type: comma-separated values of `kind`, as a tuple."""
+    def parse(text: str) -> tuple:
+        return tuple(kind(v) for v in text.split(","))
+
+    parse.__name__ = f"comma-separated {kind.__name__}"  # argparse names the type in its error
+    return parse
 
 
 def _inspect(args) -> int:
@@ -177,7 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--config", help="TOML batch config (defaults, per-file rules, material rules)")
     b.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
     b.add_argument("--atlas-resolution", type=int, help=f"atlas texels per side (default {BAKE_DEFAULTS.atlas_resolution})")
-    b.add_argument("--techniques", help="comma-separated techniques to bake besides the fallback: prt")
+    b.add_argument("--techniques", help="comma-separated techniques to bake besides the fallback: prt, kernels")
     b.add_argument("--prt-directions", type=int, help=f"prt: light directions K (default {BAKE_DEFAULTS.prt_directions})")
     b.add_argument("--prt-energy-dropped", type=float,
                    help=f"prt: fraction of R_d the gather radius may drop (default {BAKE_DEFAULTS.prt_energy_dropped})")
@@ -204,6 +230,17 @@ def build_parser() -> argparse.ArgumentParser:
                         f"(default {BAKE_DEFAULTS.prt_detail_order})")
     b.add_argument("--prt-byte-budget", type=float,
                    help="prt: bytes per vertex to spend; sets the reference count (default: from the fraction)")
+    b.add_argument("--kernels-size", type=int,
+                   help=f"kernels: k of the k x k local kernels (odd; default {BAKE_DEFAULTS.kernels_size})")
+    b.add_argument("--kernels-threshold", type=float,
+                   help=f"kernels: drop throughput entries below this (default {BAKE_DEFAULTS.kernels_threshold})")
+    b.add_argument("--kernels-blend", choices=BLENDS,
+                   help=f"kernels: how local and global responses are blended (default {BAKE_DEFAULTS.kernels_blend})")
+    b.add_argument("--kernels-seams", choices=SEAMS,
+                   help=f"kernels: unfold the surface across chart seams into the gutter, or not (default "
+                        f"{BAKE_DEFAULTS.kernels_seams})")
+    b.add_argument("--kernels-bits", type=int, choices=KERNEL_BITS,
+                   help=f"kernels: bits per stored kernel weight (default {BAKE_DEFAULTS.kernels_bits})")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")
@@ -217,7 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("verify", help="render an export with the shipped GLSL and the offline reference; image RMSE")
     v.add_argument("file", help="a .glb written by sssbake bake")
-    v.add_argument("--technique", default="prt", choices=["prt"])
+    v.add_argument("--technique", default="prt", choices=["prt", "kernels"])
     v.add_argument("--light-dir", help="x,y,z world direction towards a directional light (default 0.4,0.8,0.45)")
     v.add_argument("--light-pos", help="x,y,z world position of a point light instead (unit irradiance at the "
                                        "objects' centre)")
@@ -230,12 +267,24 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=_verify)
 
+    # kernels_tradeoff's defaults, for the help; the sweeps themselves run only on `tradeoff`
+    from .kernels_tradeoff import DEFAULT_RESOLUTION, RESOLUTIONS, SIZES, THRESHOLDS
+
     t = sub.add_parser("tradeoff", help="sweep a technique's knobs: image RMSE vs bytes per vertex and seconds")
     t.add_argument("input", help="a mesh file (the largest mesh is used)")
-    t.add_argument("--technique", default="prt", choices=["prt"])
+    t.add_argument("--technique", default="prt", choices=["prt", "kernels"])
     t.add_argument("--material", default=BAKE_DEFAULTS.material, help="preset name (default marble)")
     t.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
-    t.add_argument("--k", type=int, default=BAKE_DEFAULTS.prt_directions, help="directions for the compression sweeps")
+    t.add_argument("--k", type=int, default=BAKE_DEFAULTS.prt_directions,
+                   help="prt: directions for the compression sweeps")
+    t.add_argument("--atlas-resolution", type=int, default=DEFAULT_RESOLUTION,
+                   help=f"kernels: atlas resolution of the default configuration (default {DEFAULT_RESOLUTION})")
+    t.add_argument("--resolutions", type=_numbers(int), default=RESOLUTIONS,
+                   help=f"kernels: atlas resolutions swept (default {','.join(map(str, RESOLUTIONS))})")
+    t.add_argument("--sizes", type=_numbers(int), default=SIZES,
+                   help=f"kernels: kernel sizes swept (default {','.join(map(str, SIZES))})")
+    t.add_argument("--thresholds", type=_numbers(float), default=THRESHOLDS,
+                   help=f"kernels: F thresholds swept (default {','.join(map(str, THRESHOLDS))})")
     t.add_argument("--lights", type=int, default=3, help="random test lights; the worst RMSE counts (default 3)")
     t.add_argument("--size", type=int, default=256, help="image size (default 256)")
     t.add_argument("--out", help="folder for the JSON, CSV and plot (default: next to the input)")

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
+from .kernels_layout import KERNEL_BITS
+from .kernels_precompute import BLENDS, KERNELS_DEFAULTS, SEAMS, KernelsOptions
 from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, TABLES, WEIGHT_BITS, WEIGHTS
 from .scatter_operator import SCATTER_DEFAULTS
 from .sh import MAX_ORDER
 
 OPAQUE = "opaque"
 #: Techniques `bake` can run.
-TECHNIQUES = ("prt",)
+TECHNIQUES = ("prt", "kernels")
 
 
 @dataclass(frozen=True)
@@ -45,6 +47,10 @@ class BakeOptions:
     prt_mode, prt_reference_fraction, prt_sh_order, prt_weights, prt_tables, prt_refine, prt_weight_bits,
     prt_byte_budget, prt_reference_floor, prt_detail_order
         prt compression (see `prt_compress.PrtCompressOptions`).
+    kernels_size, kernels_threshold, kernels_blend, kernels_seams
+        kernels precompute (see `kernels_precompute.KernelsOptions`).
+    kernels_bits : int
+        kernels: bits per stored kernel weight (8 or 16).
     """
 
     material: str | dict = "marble"
@@ -67,6 +73,14 @@ class BakeOptions:
     prt_byte_budget: float | None = PRT_COMPRESS_DEFAULTS.byte_budget
     prt_reference_floor: int = PRT_COMPRESS_DEFAULTS.reference_floor
     prt_detail_order: int = PRT_COMPRESS_DEFAULTS.detail_order
+    kernels_size: int = KERNELS_DEFAULTS.kernel_size
+    kernels_threshold: float = KERNELS_DEFAULTS.threshold
+    kernels_blend: str = KERNELS_DEFAULTS.blend
+    kernels_seams: str = KERNELS_DEFAULTS.seams
+    kernels_bits: int = 16
+
+    def kernels(self) -> KernelsOptions:
+        return KernelsOptions(self.kernels_size, self.kernels_threshold, self.kernels_blend, self.kernels_seams)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -121,6 +135,9 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"prt_refine must be in [0, 1), got {o.prt_refine}")
     if not (0.0 < o.prt_reference_fraction <= 1.0):
         raise ValueError(f"prt_reference_fraction must be in (0, 1], got {o.prt_reference_fraction}")
+    o.kernels().check()
+    if o.kernels_bits not in KERNEL_BITS:
+        raise ValueError(f"kernels_bits must be one of {list(KERNEL_BITS)}, got {o.kernels_bits!r}")
     if o.prt_mode == "sh" and o.prt_sh_order < 1:
         raise ValueError("prt_mode 'sh' needs prt_sh_order >= 1 (it has no reference points)")
     if not (0 <= o.prt_sh_order <= MAX_ORDER) or o.prt_directions < o.prt_sh_order**2:

@@ -1,15 +1,18 @@
 """The reference runtime: renders meshes with the shipped GLSL, headless (moderngl on EGL).
 
-Three kinds of draw, told apart by the keys of an item (see `Renderer.render`):
+Four kinds of draw, told apart by the keys of an item (see `Renderer.render`):
 
 - ``prt``: ``prt.vert`` decodes the exported prt data on the GPU per vertex;
 - ``q``: ``vertex_q.vert`` takes scattered radiance computed per vertex elsewhere (the offline
   reference, a technique evaluated on the CPU);
+- ``kernels``: the kernels technique, whose offscreen passes (`kernels_runtime`: shadow map,
+  illumination map, local filter, distribution and global response) run every frame before
+  ``kernels_surface.vert``/``.frag`` draw q = B_l(uv) + B_g + B_d;
 - ``albedo``: ``plain.vert``/``plain.frag``, Lambert plus specular without scattering (the
   baseline of frame times).
 
-The first two share one final pass (``sss_surface.frag``): exit Fresnel F_t(η, ω_o) per pixel plus
-the surface's reflection. Images are linear float RGB.
+The scattering draws share one final pass (``sss_surface.frag``, and its kernels variant): exit
+Fresnel F_t(η, ω_o) per pixel plus the surface's reflection. Images are linear float RGB.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .kernels_data import KernelsData
+from .kernels_runtime import KernelsPasses
 from .prt_data import PrtData
 from .prt_runtime import TABLE_WIDTH, per_vertex_arrays, shader_defines, upload
 from .sh import MAX_ORDER as SH_MAX_ORDER
@@ -26,7 +31,10 @@ from .shaders import DIALECTS, shader_source
 
 #: Vertex and fragment stage of each kind of draw.
 PROGRAMS = {"prt": ("prt.vert", "sss_surface.frag"), "q": ("vertex_q.vert", "sss_surface.frag"),
-            "albedo": ("plain.vert", "plain.frag")}
+            "kernels": ("kernels_surface.vert", "kernels_surface.frag"), "albedo": ("plain.vert", "plain.frag")}
+#: Largest tan(half field of view) of a point light's shadow map (80°): a light inside or at the
+#: item's bounding sphere sees only this cone, points outside it count as lit.
+MAX_SHADOW_TAN = float(np.tan(np.radians(80.0)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,15 +74,62 @@ def fit_camera(positions: np.ndarray, view_dir=(0.3, -0.4, -1.0), fov_degrees: f
         raise ValueError(f"render: view direction must be three finite numbers, not all zero, got {view_dir}")
     if not 0.0 < fov_degrees < 180.0 or not aspect > 0.0 or not np.isfinite(aspect):
         raise ValueError(f"render: need 0 < fov < 180 degrees and aspect > 0, got {fov_degrees}, {aspect}")
-    lo, hi = positions.min(axis=0), positions.max(axis=0)
-    centre = 0.5 * (lo + hi)
-    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-9)
+    centre, radius = _bounding_sphere(positions)
     forward /= np.linalg.norm(forward)
     tan_half = np.tan(np.radians(fov_degrees) / 2.0)
     # The narrower of the two fields of view must hold the sphere.
     half = min(np.arctan(tan_half), np.arctan(tan_half * aspect))
     distance = radius / np.sin(half) * 1.05
     eye = centre - forward * distance
+    near, far = max(distance - radius * 1.5, distance * 1e-3), distance + radius * 1.5
+    return Camera(tuple(eye), _perspective(tan_half, aspect, near, far) @ _look_at(eye, forward))
+
+
+def light_camera(positions: np.ndarray, light: RenderLight) -> tuple[np.ndarray, float]:
+    """The view-projection of a shadow map of `light` over the bounding sphere of `positions`.
+
+    Directional light: orthographic along the light. Point light: perspective from the light
+    towards the sphere (a cone of at most `MAX_SHADOW_TAN` when the light is inside or near it).
+
+    Parameters
+    ----------
+    positions : (n, 3) float
+        World points the map must hold (n >= 1, finite).
+
+    Returns
+    -------
+    view_projection : (4, 4) float64
+        Row-major, world to clip space.
+    extent : float
+        World width the map spans at the sphere's centre (one shadow texel is extent / size).
+    """
+    centre, radius = _bounding_sphere(np.asarray(positions, dtype=np.float64))
+    radius *= 1.01  # points on the sphere stay inside the frustum despite rounding
+    vector = np.asarray(light.vector, dtype=np.float64)
+    if not light.point:
+        forward = -vector / np.linalg.norm(vector)
+        view = _look_at(centre - 2.0 * radius * forward, forward)
+        ortho = np.diag([1.0 / radius, 1.0 / radius, -1.0 / radius, 1.0])
+        ortho[2, 3] = -2.0  # depth: distances radius .. 3 radius to -1 .. 1
+        return ortho @ view, 2.0 * radius
+    offset = centre - vector
+    distance = float(np.linalg.norm(offset))
+    forward = offset / distance if distance > 0 else np.array([0.0, 0.0, -1.0])
+    gap = distance * distance - radius * radius
+    tan_half = min(radius / np.sqrt(gap), MAX_SHADOW_TAN) if gap > 0 else MAX_SHADOW_TAN
+    near, far = max(distance - radius, 1e-3 * radius), distance + radius
+    projection = _perspective(tan_half, 1.0, near, far) @ _look_at(vector, forward)
+    return projection, 2.0 * max(distance, radius) * tan_half
+
+
+def _bounding_sphere(positions: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and radius (> 0) of the sphere around the bounding box of (n, 3) `positions`."""
+    lo, hi = positions.min(axis=0), positions.max(axis=0)
+    return 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-9)
+
+
+def _look_at(eye: np.ndarray, forward: np.ndarray) -> np.ndarray:
+    """(4, 4) view matrix of an eye looking along unit `forward`, y up unless forward is near it."""
     up = np.array([0.0, 1.0, 0.0]) if abs(forward[1]) < 0.9 else np.array([0.0, 0.0, 1.0])
     right = np.cross(forward, up)
     right /= np.linalg.norm(right)
@@ -82,13 +137,17 @@ def fit_camera(positions: np.ndarray, view_dir=(0.3, -0.4, -1.0), fov_degrees: f
     view = np.eye(4)
     view[0, :3], view[1, :3], view[2, :3] = right, true_up, -forward
     view[:3, 3] = -view[:3, :3] @ eye
-    near, far = max(distance - radius * 1.5, distance * 1e-3), distance + radius * 1.5
+    return view
+
+
+def _perspective(tan_half: float, aspect: float, near: float, far: float) -> np.ndarray:
+    """(4, 4) GL perspective projection of vertical half-angle tangent `tan_half`."""
     f = 1.0 / tan_half
     proj = np.zeros((4, 4))
     proj[0, 0], proj[1, 1] = f / aspect, f
     proj[2, 2], proj[2, 3] = (far + near) / (near - far), 2 * far * near / (near - far)
     proj[3, 2] = -1.0
-    return Camera(tuple(eye), proj @ view)
+    return proj
 
 
 @dataclass(frozen=True)
@@ -130,10 +189,14 @@ class Renderer:
     dialect : str
         ``"glsl330"`` or ``"essl300"`` (Mesa accepts ES 3.00 shaders in desktop GL).
     table_width : int
-        Width of the wrapped 2-D layout of the prt tables (`prt_runtime.upload`).
+        Width of the wrapped 2-D layout of the prt and kernels tables (`prt_runtime.upload`,
+        `kernels_runtime`).
+    shadow_size : int
+        Side in texels of the kernels draws' shadow maps.
     """
 
-    def __init__(self, size: tuple[int, int] = (512, 512), dialect: str = "glsl330", table_width: int = TABLE_WIDTH):
+    def __init__(self, size: tuple[int, int] = (512, 512), dialect: str = "glsl330", table_width: int = TABLE_WIDTH,
+                 shadow_size: int = 2048):
         import moderngl
 
         if dialect not in DIALECTS:
@@ -145,14 +208,18 @@ class Renderer:
         if not (0 < width <= limit and 0 < height <= limit):
             self.ctx.release()
             raise ValueError(f"render: image size {size} outside 1..{limit} (this GL's limit)")
+        if not 0 < shadow_size <= self.ctx.info["GL_MAX_TEXTURE_SIZE"]:
+            self.ctx.release()
+            raise ValueError(f"render: shadow map size {shadow_size} outside 1..{self.ctx.info['GL_MAX_TEXTURE_SIZE']}")
         self.size = (width, height)
         self.dialect = dialect
         self.table_width = table_width
+        self.shadow_size = int(shadow_size)
         self.fbo = self.ctx.framebuffer(
             color_attachments=[self.ctx.texture(self.size, 4, dtype="f4")],
             depth_attachment=self.ctx.depth_texture(self.size),
         )
-        self._programs: dict[tuple[str, str], object] = {}
+        self._programs: dict[tuple[str, str, str], object] = {}
 
     def render(self, items, camera: Camera, light: RenderLight, specular: float = 0.0, shininess: float = 64.0,
                diffuse=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
@@ -164,7 +231,9 @@ class Renderer:
             Each with ``positions`` (n, 3), ``normals`` (n, 3), ``faces`` (m, 3) int, ``model``
             (4, 4) object-to-world, ``eta`` and one of: ``prt`` (`PrtData` over the n vertices,
             q per unit irradiance), ``q`` (n, 3) scattered radiance per vertex (irradiance
-            included), ``albedo`` (3,) for the plain shader.
+            included), ``albedo`` (3,) for the plain shader, ``kernels`` (`KernelsData`) with
+            ``uvs`` (n, 2) atlas UVs (glTF convention) and ``vertex_ids`` (n,) int, the welded
+            surface vertex of each render vertex (its shadow map holds the item's own triangles).
         specular : float
             Weight of the surface's specular reflection (Fresnel reflectance 1 - F_t times a
             normalised Blinn-Phong lobe of exponent `shininess`).
@@ -198,8 +267,9 @@ class Renderer:
     def frame_ms(self, items, camera: Camera, light: RenderLight, frames: int = 20, specular: float = 0.0) -> float:
         """Median milliseconds per frame of drawing `items` (see `render`).
 
-        Data is uploaded once; each frame clears, binds each draw's textures and uniforms, draws
-        and waits for the GPU (``ctx.finish``). Two warm-up frames are not counted.
+        Data is uploaded once; each frame clears, runs each kernels draw's offscreen passes, binds
+        each draw's textures and uniforms, draws and waits for the GPU (``ctx.finish``). Two
+        warm-up frames are not counted.
         """
         import moderngl
 
@@ -222,17 +292,49 @@ class Renderer:
                 draw.release()
         return 1000.0 * float(np.median(times[2:]))
 
+    def kernels_passes(self, item: dict, light: RenderLight, illumination: np.ndarray | None = None) -> dict:
+        """Run the offscreen passes of a kernels item once and read their results back.
+
+        Parameters
+        ----------
+        item : dict
+            A render item with ``kernels`` (see `render`).
+        illumination : (height, width) float, optional
+            E to filter and distribute instead of the one the shadow and illumination passes
+            render (row 0 = atlas row 0).
+
+        Returns
+        -------
+        dict
+            ``illumination`` (height, width) float32, row 0 = atlas row 0; ``local`` (S, 3) B_l at
+            the covered texels; ``e_g`` (n,); ``b_d`` (n, 3); ``b_g`` (n, 3) (`KernelsPasses.read`).
+        """
+        if _check_item(0, item) != "kernels":
+            raise ValueError("render: kernels_passes needs an item with kernels")
+        passes = self._kernels_passes(item, light)
+        try:
+            passes.run(illumination)
+            return passes.read()
+        finally:
+            passes.release()
+
     def release(self) -> None:
         """Free the GL context (the renderer is unusable afterwards)."""
         self.ctx.release()
 
-    def _program(self, kind: str, prelude: str = ""):
-        if (kind, prelude) not in self._programs:
-            vertex, fragment = PROGRAMS[kind]
-            self._programs[kind, prelude] = self.ctx.program(
+    def _program(self, vertex: str, fragment: str, prelude: str = ""):
+        if (vertex, fragment, prelude) not in self._programs:
+            self._programs[vertex, fragment, prelude] = self.ctx.program(
                 vertex_shader=shader_source(vertex, self.dialect, prelude),
                 fragment_shader=shader_source(fragment, self.dialect, prelude))
-        return self._programs[kind, prelude]
+        return self._programs[vertex, fragment, prelude]
+
+    def _kernels_passes(self, item: dict, light: RenderLight) -> KernelsPasses:
+        model = np.asarray(item["model"], dtype=np.float64)
+        world = np.asarray(item["positions"], dtype=np.float64) @ model[:3, :3].T + model[:3, 3]
+        view_projection, extent = light_camera(world, light)
+        return KernelsPasses(self.ctx, self._program, item, light, view_projection, extent, self.fbo,
+                             self.table_width, self.shadow_size)
 
     def _prepare(self, items, camera, light, specular, shininess, diffuse) -> list[_Draw]:
         if not len(items):
@@ -250,14 +352,22 @@ class Renderer:
 
     def _draw(self, kind, item, camera, light, specular, shininess, diffuse) -> _Draw:
         # one prt variant per SH order and weight layout (see prt_decode.glsl)
-        program = self._program(kind, shader_defines(item["prt"]) if kind == "prt" else "")
-        textures, extra = [], []
+        program = self._program(*PROGRAMS[kind], shader_defines(item["prt"]) if kind == "prt" else "")
+        textures, extra, passes = [], [], None
         if kind == "prt":
             extra = per_vertex_arrays(item["prt"])
             # `upload` also sets this item's prt uniforms, which `_Draw` snapshots below.
             textures = upload(self.ctx, program, item["prt"], width=self.table_width)
         elif kind == "q":
             extra = [(np.asarray(item["q"], np.float32), "3f", "in_q")]
+        elif kind == "kernels":
+            passes = self._kernels_passes(item, light)
+            extra = [(np.asarray(item["uvs"], np.float32), "2f", "in_uv"),
+                     (passes.vertex_texels(item["vertex_ids"]), "2i", "in_vertex_texel")]
+            for unit, (name, texture) in enumerate(passes.surface_textures.items()):
+                if name in program:
+                    program[name].value = unit
+                textures.append(texture)
         linear = np.asarray(item["model"], dtype=np.float64)[:3, :3]
         to_object = np.linalg.inv(linear)
         matrices = {"u_model": item["model"], "u_view_projection": camera.view_projection,
@@ -275,28 +385,36 @@ class Renderer:
             if name in program:
                 program[name].value = value
         arrays = [(item["positions"], "3f", "in_position"), (item["normals"], "3f", "in_normal")] + extra
-        buffers = [self.ctx.buffer(np.ascontiguousarray(a, np.float32 if f.endswith("f") else None).tobytes())
-                   for a, f, _ in arrays]
-        buffers.append(self.ctx.buffer(np.ascontiguousarray(item["faces"], np.uint32).tobytes()))
-        content = [(b, f, name) for b, (_, f, name) in zip(buffers, arrays) if name in program]
-        vao = self.ctx.vertex_array(program, content, index_buffer=buffers[-1], index_element_size=4)
-        return _Draw(program, vao, textures, buffers)
+        try:
+            buffers = [self.ctx.buffer(np.ascontiguousarray(a, np.float32 if f.endswith("f") else None).tobytes())
+                       for a, f, _ in arrays]
+            buffers.append(self.ctx.buffer(np.ascontiguousarray(item["faces"], np.uint32).tobytes()))
+            content = [(b, f, name) for b, (_, f, name) in zip(buffers, arrays) if name in program]
+            vao = self.ctx.vertex_array(program, content, index_buffer=buffers[-1], index_element_size=4)
+        except Exception:
+            if passes is not None:
+                passes.release()
+            raise
+        return _Draw(program, vao, textures, buffers, passes)
 
 
 class _Draw:
     """One item ready to draw: its vertex array, textures and the uniform values it was set up with
-    (several items may share a program, so each draw restores its own)."""
+    (several items may share a program, so each draw restores its own), and the offscreen passes
+    to run first (kernels: `KernelsPasses`, which bind the target framebuffer again)."""
 
-    def __init__(self, program, vao, textures, buffers):
+    def __init__(self, program, vao, textures, buffers, passes: KernelsPasses | None = None):
         import moderngl
 
-        self.program, self.vao, self.textures, self.buffers = program, vao, textures, buffers
+        self.program, self.vao, self.textures, self.buffers, self.passes = program, vao, textures, buffers, passes
         self.uniforms = {name: program[name].read() for name in program
                          if isinstance(program[name], moderngl.Uniform)}
 
     def run(self) -> None:
         import moderngl
 
+        if self.passes is not None:
+            self.passes.run()
         for name, raw in self.uniforms.items():
             self.program[name].write(raw)
         for unit, texture in enumerate(self.textures):  # `upload` numbers the units from 0
@@ -304,7 +422,8 @@ class _Draw:
         self.vao.render(moderngl.TRIANGLES)
 
     def release(self) -> None:
-        for o in [self.vao, *self.textures, *self.buffers]:
+        owned = self.textures if self.passes is None else [self.passes]  # the passes own the kernels textures
+        for o in [self.vao, *owned, *self.buffers]:
             o.release()
 
 
@@ -317,7 +436,7 @@ def _check_item(i: int, item: dict) -> str:
     n = len(positions)
     faces = np.asarray(item["faces"])
     shapes = {"positions": (n, 3), "normals": (n, 3), "model": (4, 4)}
-    shapes.update({"q": (n, 3)} if kinds[0] == "q" else {"albedo": (3,)} if kinds[0] == "albedo" else {})
+    shapes.update({"q": {"q": (n, 3)}, "albedo": {"albedo": (3,)}, "kernels": {"uvs": (n, 2)}}.get(kinds[0], {}))
     for name, shape in shapes.items():
         a = np.asarray(item[name])
         if a.shape != shape or not np.all(np.isfinite(a)):
@@ -332,4 +451,22 @@ def _check_item(i: int, item: dict) -> str:
     if kinds[0] == "prt" and (not isinstance(item["prt"], PrtData) or item["prt"].vertex_count != n
                               or not 0 <= item["prt"].sh_order <= SH_MAX_ORDER):
         raise ValueError(f"render: item {i}: prt must be PrtData over the item's {n} vertices, SH order <= {SH_MAX_ORDER}")
+    if kinds[0] == "kernels":
+        _check_kernels(i, item, n)
     return kinds[0]
+
+
+def _check_kernels(i: int, item: dict, n: int) -> None:
+    """The kernels data of item `i` (n render vertices) and its map to the welded vertices."""
+    data = item["kernels"]
+    if not isinstance(data, KernelsData):
+        raise ValueError(f"render: item {i}: kernels must be KernelsData, got {type(data).__name__}")
+    try:
+        data.check()
+    except ValueError as error:
+        raise ValueError(f"render: item {i}: {error}") from None
+    ids = np.asarray(item["vertex_ids"])
+    if ids.shape != (n,) or not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0 or ids.max() >= data.vertex_count:
+        raise ValueError(f"render: item {i}: vertex_ids must be ({n},) integers in 0..{data.vertex_count - 1}")
+    if not np.all(np.isin(data.border_vertices, ids)):
+        raise ValueError(f"render: item {i}: border texels use welded vertices no render vertex maps to")

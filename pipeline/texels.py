@@ -70,6 +70,7 @@ def rasterize_atlas(
     parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
     width: int,
     height: int,
+    accept=None,
 ) -> TexelSamples:
     """Find the surface point behind every texel whose centre lies inside an atlas triangle.
 
@@ -81,6 +82,10 @@ def rasterize_atlas(
         [0, 1], glTF convention.
     width, height : int
         Atlas size in texels.
+    accept : callable, optional
+        ``accept(pixels (m,) int64, triangles (m,) int64) -> (m,) bool``: which candidate samples
+        may claim their texel (triangles numbered over all parts in order), before the first
+        triangle over a texel takes it.
 
     Returns
     -------
@@ -151,6 +156,8 @@ def rasterize_atlas(
         b2 = (e0[tri, 0] * rel_y - e0[tri, 1] * rel_x) * inv
         b0 = 1.0 - b1 - b2
         inside = (b0 >= -EDGE_TOLERANCE) & (b1 >= -EDGE_TOLERANCE) & (b2 >= -EDGE_TOLERANCE)
+        if accept is not None:
+            inside &= accept(row * width + col, tri)
         found_tri.append(tri[inside])
         found_pixel.append(row[inside] * width + col[inside])
         found_bary.append(np.stack([b0[inside], b1[inside], b2[inside]], axis=1))

@@ -1,9 +1,10 @@
 """``sssbake verify``: render an export with the shipped GLSL and the offline reference under one
-camera and light, and measure the difference (shared by every technique; prt for now).
+camera and light, and measure the difference (shared by every technique).
 
-Per mesh instance the reference is `reference.reference_scattering` over the primitive's welded
-surface (as the bake computed it), in the mesh's frame with its ``scaleMm``, mapped back to the
-file's render vertices.
+Per mesh instance the reference is `reference.reference_scattering` over the welded surface of
+what one draw holds (prt: a primitive; kernels: all primitives of the mesh, which share its atlas
+and its throughput matrix), in the mesh's frame with its ``scaleMm``, mapped back to the file's
+render vertices.
 """
 
 from __future__ import annotations
@@ -11,19 +12,22 @@ from __future__ import annotations
 import json
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pygltflib
 
+from ..exporters.read_kernels import read_kernels_glb
 from ..exporters.read_prt import read_prt_glb
 from .clean import WELD_TOLERANCE, area_weighted_normals, weld_surface
 from .load import load_scene
+from .scene import Primitive
 from .materials import Material
 from .reference import Light, reference_scattering
 from .visibility import direction_visibility, point_visibility
 
-TECHNIQUES = ("prt",)
+TECHNIQUES = ("prt", "kernels")
 REFERENCES = ("exact", "clustered")
 DEFAULT_LIGHT = (0.4, 0.8, 0.45)
 #: Colour of the plain shader that frame times are compared with (its cost does not depend on it).
@@ -75,20 +79,23 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     point = None if light_pos is None else np.asarray(light_pos, dtype=np.float64)
     if point is not None and (point.shape != (3,) or not np.all(np.isfinite(point))):
         raise ValueError(f"verify: light position must be three finite numbers, got {light_pos}")
-    prt_data = read_prt_glb(path)
+    data = read_prt_glb(path) if technique == "prt" else read_kernels_glb(path)
     gltf = pygltflib.GLTF2.load(str(path))
     scene = load_scene(str(path))
-    instances = [(mi, pi, world) for mi, worlds in sorted(scene.mesh_instances().items())
-                 for pi in range(len(scene.meshes[mi].primitives)) if (mi, pi) in prt_data for world in worlds]
+    instances = []
+    for mi, worlds in sorted(scene.mesh_instances().items()):
+        held = [pi for pi in range(len(scene.meshes[mi].primitives)) if (mi, pi) in data]
+        units = [[pi] for pi in held] if technique == "prt" else ([held] if held else [])
+        instances += [(mi, unit, world) for unit in units for world in worlds]
     if not instances:
-        raise ValueError(f"verify: {path} has no drawable primitive with prt data")
+        raise ValueError(f"verify: {path} has no drawable primitive with {technique} data")
     mm_world = {float((gltf.meshes[mi].extras or {}).get("sssbake", {})["scaleMm"]) for mi, _, _ in instances}
     if point is not None:
         scales = [abs(np.linalg.det(world[:3, :3])) for _, _, world in instances]
         if len(mm_world) > 1 or not np.allclose(scales, 1.0, rtol=1e-6):
             raise ValueError(f"verify: {path}: a point light needs one scaleMm and unscaled world transforms")
         points = np.concatenate([(w[:3, :3] @ scene.meshes[mi].primitives[pi].positions.T).T + w[:3, 3]
-                                 for mi, pi, w in instances])
+                                 for mi, unit, w in instances for pi in unit])
         centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
         if not np.linalg.norm(point - centre) > 0:
             raise ValueError(f"verify: the point light sits at the objects' centre {centre.tolist()}; move it")
@@ -97,11 +104,12 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
 
     sss_items, ref_items, lambert_items = [], [], []
     t_ref = time.perf_counter()
-    for mi, pi, world in instances:
-        prim = scene.meshes[mi].primitives[pi]
-        material = _material(gltf, prim.material, path)
+    for mi, unit, world in instances:
+        prims = [scene.meshes[mi].primitives[pi] for pi in unit]
+        prim = _merged(prims)
+        material = _material(gltf, prims[0].material, path)
         mm = float(gltf.meshes[mi].extras["sssbake"]["scaleMm"])
-        normals = prim.normals if prim.normals is not None else area_weighted_normals(prim.positions, prim.faces)
+        normals = prim.normals
         # Seam vertices share positions: weld them, or a zero distance would read Rd(0).
         diagonal = float(np.linalg.norm(np.ptp(prim.positions, axis=0)))
         surface = weld_surface([prim], WELD_TOLERANCE * diagonal)
@@ -123,7 +131,12 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
             lambert = np.clip(cos, 0.0, None) * visible * intensity / np.maximum(distance * mm, 1e-300) ** 2
         ref = reference_scattering(surface, mm, material, light, clustered=reference_sum == "clustered")[:, weld]
         base = dict(positions=prim.positions, normals=normals, faces=prim.faces, model=world, eta=material.eta)
-        sss_items.append({**base, "prt": prt_data[(mi, pi)]})
+        if technique == "prt":
+            sss_items.append({**base, "prt": data[(mi, unit[0])]})
+        else:
+            kernels = data[(mi, unit[0])][0]
+            sss_items.append({**base, "kernels": kernels, "uvs": prim.uvs[-1],
+                              "vertex_ids": np.concatenate([data[(mi, pi)][1] for pi in unit])})
         ref_items.append({**base, "q": ref.T})
         lambert_items.append({**base, "q": np.repeat(lambert[:, None], 3, axis=1)})
     reference_seconds = time.perf_counter() - t_ref
@@ -152,7 +165,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     write_difference_png(pngs["difference"], image, reference, exposure)
 
     report = _bake_report(path)
-    prt_reports = list(report.get("prt", {}).values())
+    technique_reports = list(report.get(technique, {}).values())
+    per_vertex = (lambda r: r["bytesPerVertex"]["total"]) if technique == "prt" else (lambda r: r["bytes"]["perVertex"])
     return {
         "technique": technique,
         "light_dir": light_world.tolist(),
@@ -162,7 +176,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         "rmse_object": rmse(image, reference, exposure, ref_mask | mask),
         "rmse_object_lambert": rmse(lambert, reference, exposure, ref_mask),
         "lambert_scale": scale.tolist(),
-        "bytes_per_vertex": prt_reports[0]["bytesPerVertex"]["total"] if prt_reports else None,
+        "bytes_per_vertex": per_vertex(technique_reports[0]) if technique_reports else None,
         "bake_seconds": report.get("seconds"),
         "frame_ms_sss": renderer.frame_ms(sss_items, camera, light, frames),
         # plain: the standard Lambert + specular shader, no SSS data
@@ -175,12 +189,24 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     }
 
 
+def _merged(prims: list) -> Primitive:
+    """One primitive of all of `prims` (faces re-indexed), with normals where they lacked them."""
+    normals = [p.normals if p.normals is not None else area_weighted_normals(p.positions, p.faces) for p in prims]
+    offsets = np.cumsum([0] + [len(p.positions) for p in prims])
+    uv_sets = min(len(p.uvs) for p in prims)
+    return replace(prims[0], positions=np.concatenate([p.positions for p in prims]),
+                   normals=np.concatenate(normals),
+                   faces=np.concatenate([p.faces + o for p, o in zip(prims, offsets)]),
+                   uvs=tuple(np.concatenate([p.uvs[len(p.uvs) - uv_sets + t] for p in prims]) for t in range(uv_sets)),
+                   tangents=None, colors=None)
+
+
 def _material(gltf: pygltflib.GLTF2, index: int | None, path: Path) -> Material:
     data = None
     if index is not None:
         data = ((gltf.materials[index].extras or {}).get("sssbake") or {}).get("material")
     if not data:
-        raise ValueError(f"verify: {path}: a prt primitive's material has no extras.sssbake.material")
+        raise ValueError(f"verify: {path}: a scattering primitive's material has no extras.sssbake.material")
     return Material(data["name"], tuple(data["sigma_s_prime"]), tuple(data["sigma_a"]), float(data["eta"]))
 
 

@@ -23,8 +23,9 @@ THREADS = 2
 
 
 def direction_visibility(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray,
-                         directions: np.ndarray) -> np.ndarray:
-    """Whether each vertex sees each directional light unoccluded.
+                         directions: np.ndarray, points: np.ndarray | None = None,
+                         point_normals: np.ndarray | None = None) -> np.ndarray:
+    """Whether each vertex (or each of `points`) sees each directional light unoccluded.
 
     Parameters
     ----------
@@ -34,13 +35,22 @@ def direction_visibility(positions: np.ndarray, faces: np.ndarray, normals: np.n
         Outward unit vertex normals.
     directions : (K, 3) float64
         Unit directions towards the lights.
+    points, point_normals : (p, 3) float64, optional
+        Surface points (e.g. texel centres) and their unit normals to test instead of the vertices.
 
     Returns
     -------
-    (n, K) bool
-        False where the light is below the vertex's horizon (n·ω <= 0) or blocked.
+    (n, K) or (p, K) bool
+        False where the light is below the point's horizon (n·ω <= 0) or blocked.
     """
     x, scene, offset = _setup(positions, faces, normals)
+    if points is not None:
+        normals = np.asarray(point_normals, dtype=np.float64)
+        points = np.asarray(points, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
+            raise ValueError(f"visibility: points and point_normals must be (p, 3), got {points.shape}, {normals.shape}")
+        x = points - 0.5 * (np.asarray(positions).min(axis=0) + np.asarray(positions).max(axis=0))
+        offset = _offset_length(positions) * normals
     directions = np.asarray(directions, dtype=np.float64)
     facing = np.asarray(normals, dtype=np.float64) @ directions.T > 0.0
     out = np.zeros(facing.shape, dtype=bool)
@@ -90,7 +100,10 @@ def _setup(positions, faces, normals):
     # Embree works in float32: centring keeps its precision relative to the mesh size.
     centre = 0.5 * (positions.min(axis=0) + positions.max(axis=0))
     x = positions - centre
-    diagonal = float(np.linalg.norm(np.ptp(positions, axis=0)))
     scene = rtcore_scene.EmbreeScene()
     TriangleMesh(scene, x.astype(np.float32), faces.astype(np.int32))
-    return x, scene, (OFFSET * diagonal) * normals
+    return x, scene, _offset_length(positions) * normals
+
+
+def _offset_length(positions) -> float:
+    return OFFSET * float(np.linalg.norm(np.ptp(np.asarray(positions, dtype=np.float64), axis=0)))

@@ -27,3 +27,28 @@ def plane(spacing: float, half: int) -> tuple[np.ndarray, np.ndarray, int]:
     a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
     faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
     return verts, faces, half * n + half
+
+
+def random_kernels(rng, n: int = 40, width: int = 24, height: int = 20, kernel_size: int = 7, texels: int = 150,
+                   per_row: int = 6, borders: int = 5):
+    """Valid `KernelsData` with random values (n welded vertices, a `width` × `height` atlas)."""
+    from sssbake.pipeline.kernels_data import KernelsData
+
+    k2 = kernel_size * kernel_size
+    chosen = rng.choice(width * height, texels + borders, replace=False).astype(np.int64)
+    pixels, border = np.sort(chosen[:texels]), np.sort(chosen[texels:])
+    counts = rng.integers(0, per_row + 1, n)
+    indptr = np.r_[0, np.cumsum(counts)].astype(np.int64)
+    indices = np.concatenate([np.sort(rng.choice(n, c, replace=False)) for c in counts]).astype(np.int64)
+    data = KernelsData(
+        width=width, height=height, kernel_size=kernel_size, vertex_count=n, texels=pixels,
+        kernels=rng.normal(0.0, 0.05, (texels, k2, 3)).astype(np.float32),
+        texel_vertices=rng.integers(0, n, (texels, 3)).astype(np.int64),
+        texel_dual=rng.uniform(-0.5, 1.5, (texels, 3)).astype(np.float32),
+        texel_direct=rng.uniform(0.0, 0.2, (texels, 3, 3)).astype(np.float32),
+        f_indptr=indptr, f_indices=indices, f_values=rng.uniform(1e-5, 0.05, (len(indices), 3)).astype(np.float32),
+        border_texels=border, border_vertices=rng.integers(0, n, (borders, 3)).astype(np.int64),
+        border_barycentric=rng.dirichlet(np.ones(3), borders).astype(np.float32),
+    )
+    data.check()
+    return data

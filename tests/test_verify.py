@@ -56,3 +56,26 @@ def test_files_without_prt_get_a_clear_error(tmp_path, capsys):
     assert main(["verify", str(out / "sphere.glb")]) == 1
     assert "bake with --techniques prt" in capsys.readouterr().err
     assert main(["verify", str(src / "sphere.obj")]) == 2
+
+
+def test_kernels_export_renders_close_to_the_reference_and_blending_matters(tmp_path, capsys):
+    src = tmp_path / "in"
+    generate(src)
+    results = {}
+    for blend in ("optimised", "none"):
+        out = tmp_path / blend
+        assert main(["bake", str(src / "sphere.obj"), "-o", str(out), "--config", str(src / "sssbake.toml"),
+                     "--techniques", "kernels", "--atlas-resolution", "128", "--kernels-blend", blend, "-q"]) == 0
+        capsys.readouterr()
+        assert main(["verify", str(out / "sphere.glb"), "--technique", "kernels", "--size", "96", "--frames", "2",
+                     "--json"]) == 0
+        results[blend] = json.loads(capsys.readouterr().out)
+        report = json.loads((out / "sphere.report.json").read_text())
+        assert results[blend]["bytes_per_vertex"] == report["kernels"]["sphere"]["bytes"]["perVertex"] > 0
+    result = results["optimised"]
+    assert KEYS <= set(result) and result["technique"] == "kernels"
+    assert result["rmse_object"] < 0.75 * result["rmse_object_lambert"]
+    # local and global responses simply added count the light twice where it enters (§5.4)
+    assert results["none"]["rmse_object"] > 2 * result["rmse_object"]
+    assert main(["verify", str(tmp_path / "optimised" / "sphere.glb"), "--technique", "prt"]) == 1
+    assert "bake with --techniques prt" in capsys.readouterr().err

@@ -1,0 +1,74 @@
+"""Read the kernels data of an exported .glb or .usdc back, per mesh primitive.
+
+The inverse of what `pipeline.kernels_layout` lays out. A glTF mesh holds one atlas, so its
+primitives share one `KernelsData`; USD writes the mesh's tables onto each of its Mesh prims, so
+each prim gets its own (equal) copy.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+
+from ..pipeline.kernels_data import KernelsData
+from ..pipeline.kernels_layout import VERTEX_KEY, kernels_data_from_tables, vertex_ids_from_layout
+from .gltf import read_accessor
+
+
+class KernelsReadError(ValueError):
+    """The file holds no kernels data, or a primitive lacks its vertex attribute."""
+
+
+def read_kernels_glb(path: str | os.PathLike) -> dict[tuple[int, int], tuple[KernelsData, np.ndarray]]:
+    """``(mesh index, primitive index) -> (KernelsData, vertex_ids (p,) int64)`` for every primitive
+    of a mesh whose ``extras.sssbake`` has ``kernels``."""
+    gltf = pygltflib.GLTF2.load(str(path))
+    blob = gltf.binary_blob()
+    out = {}
+    for i, mesh in enumerate(gltf.meshes):
+        tables = ((mesh.extras or {}).get("sssbake") or {}).get("kernels")
+        if tables is None:
+            continue
+        resolved = {k: read_accessor(gltf, v["accessor"], blob) if isinstance(v, dict) and "accessor" in v else v
+                    for k, v in tables.items()}
+        data = kernels_data_from_tables(resolved)
+        name = resolved["attributes"]["vertex"]
+        for j, prim in enumerate(mesh.primitives):
+            index = getattr(prim.attributes, name, None)
+            if index is None:
+                raise KernelsReadError(f"{path}: mesh {i} primitive {j} lacks attribute {name}")
+            out[(i, j)] = data, vertex_ids_from_layout(resolved, {name: read_accessor(gltf, index, blob)})
+    if not out:
+        raise KernelsReadError(f"{path}: no mesh holds kernels data (bake with --techniques kernels)")
+    return out
+
+
+def read_kernels_usd(path: str | os.PathLike) -> dict[str, tuple[KernelsData, np.ndarray]]:
+    """Mesh prim path -> (KernelsData, vertex_ids (p,) int64), for every UsdGeom.Mesh whose
+    ``sss:extras`` has ``kernels``."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(Path(path)))
+    out = {}
+    for prim in stage.Traverse():
+        attr = prim.GetAttribute("sss:extras")
+        if not prim.IsA(UsdGeom.Mesh) or not attr:
+            continue
+        tables = json.loads(attr.Get()).get("kernels")
+        if tables is None:
+            continue
+        resolved = {k: np.asarray(prim.GetAttribute(v["attribute"]).Get())
+                    if isinstance(v, dict) and "attribute" in v else v for k, v in tables.items()}
+        primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(VERTEX_KEY)
+        if not primvar:
+            raise KernelsReadError(f"{path}: {prim.GetPath()} lacks primvars:{VERTEX_KEY}")
+        stored = np.asarray(primvar.Get()).reshape(-1, primvar.GetElementSize())
+        ids = vertex_ids_from_layout(resolved, {resolved["attributes"]["vertex"]: stored})
+        out[str(prim.GetPath())] = kernels_data_from_tables(resolved), ids
+    if not out:
+        raise KernelsReadError(f"{path}: no mesh holds kernels data (bake with --techniques kernels)")
+    return out

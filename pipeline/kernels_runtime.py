@@ -1,0 +1,297 @@
+"""The kernels technique (Lensch et al. 2002) on the GPU with moderngl: `KernelsData` uploaded as
+textures and steps 1-4 of `kernels_data` as per-frame fragment passes (no compute shaders, so the
+shaders stay GLSL 3.30 and ES 3.00); `render` adds the final draw (``kernels_surface.vert`` /
+``.frag``, step 5).
+
+Passes, each into a float texture:
+
+1. shadow map: depth from the light (``plain.vert``, ``kernels_depth.frag``);
+2. illumination map E, W × H R32F: border texels as one-pixel points, then the mesh triangles at
+   their atlas UVs (``kernels_atlas.vert``, ``kernels_illumination.frag``);
+3. local response, W × H RGBA32F: ``kernels_filter.frag`` (rgb B_l, alpha coverage);
+4. distribution then global response, per-vertex RGBA32F: ``kernels_gather.frag`` twice, giving
+   (B_d, E_g) and B_g.
+
+Layouts. Atlas textures hold atlas row r in texture row r: the atlas pass sends v = 0 to
+framebuffer row 0, which is texture row 0, and ``texture(map, uv)`` reads glTF UVs as they are, so
+nothing is flipped. Per-vertex textures hold welded vertex j at texel (j % w, j / w), w =
+min(table width, n). Long tables (kernel weights, CSR entries) are wrapped the same way by
+`prt_runtime._table_texture`; the shaders never divide: a texel's kernel, a CSR row and an entry's
+source are given as texels, computed here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kernels_data import KernelsData
+from .prt_runtime import _table_texture
+
+#: How far a shadow lookup moves off the surface, in shadow-map texels (along n and towards the
+#: light): enough against self-shadowing of lit surfaces at 1-texel depth quantisation.
+SHADOW_OFFSET_TEXELS = 1.5
+
+
+class KernelsPasses:
+    """One kernels item's GL objects and passes 1-4.
+
+    Parameters
+    ----------
+    ctx : moderngl.Context
+    program : callable
+        ``program(vertex_file, fragment_file) -> moderngl.Program`` (the renderer's cache).
+    item : dict
+        A checked render item of kind ``"kernels"`` (see `render.Renderer.render`).
+    light : render.RenderLight
+    light_view_projection : (4, 4) float64
+        World to the shadow map's clip space (`render.light_camera`).
+    shadow_extent : float
+        World width the shadow map spans at the item (sets the size of a shadow texel).
+    target : moderngl.Framebuffer
+        Bound again, with its viewport, after the passes.
+    table_width : int
+        Width of the wrapped layouts.
+    shadow_size : int
+        Shadow map side in texels.
+    """
+
+    def __init__(self, ctx, program, item: dict, light, light_view_projection: np.ndarray, shadow_extent: float,
+                 target, table_width: int, shadow_size: int):
+        import moderngl
+
+        self.ctx, self.target = ctx, target
+        self.data: KernelsData = item["kernels"]
+        self._objects: list = []
+        self._limit = ctx.info["GL_MAX_TEXTURE_SIZE"]
+        w, h, n = self.data.width, self.data.height, self.data.vertex_count
+        self.vertex_width = min(table_width, n)
+        vertex_size = (self.vertex_width, -(-n // self.vertex_width))
+        if max(w, h) > self._limit:
+            raise ValueError(f"kernels runtime: a {w} x {h} atlas is over GL_MAX_TEXTURE_SIZE {self._limit}")
+        if vertex_size[1] > self._limit:
+            raise ValueError(f"kernels runtime: {n} vertices need {vertex_size[1]} rows of {self.vertex_width} "
+                             f"texels, over GL_MAX_TEXTURE_SIZE {self._limit}")
+        try:
+            self.illumination = self._keep(ctx.texture((w, h), 1, dtype="f4"))
+            self.local = self._keep(ctx.texture((w, h), 4, dtype="f4"))
+            self.local.repeat_x = self.local.repeat_y = False  # bilinear reads at the atlas edge clamp
+            self.direct = self._keep(ctx.texture(vertex_size, 4, dtype="f4"))
+            self.global_ = self._keep(ctx.texture(vertex_size, 4, dtype="f4"))
+            for tex in (self.illumination, self.direct, self.global_):
+                tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            self._response_passes = self._response(program, table_width)
+            self._light_passes = self._lighting(program, item, light, light_view_projection, shadow_extent,
+                                                shadow_size)
+        except Exception:
+            self.release()
+            raise
+
+    def _response(self, program, table_width: int) -> list[_Pass]:
+        """Steps 2-4: their tables and passes."""
+        import moderngl
+
+        data, ctx = self.data, self.ctx
+        w, h, n = data.width, data.height, data.vertex_count
+
+        def table(name, rows, dtype, width=table_width):
+            rows_needed = -(-max(len(rows), 1) // width)
+            if rows_needed > self._limit:
+                raise ValueError(f"kernels runtime: {name} ({len(rows)} entries) needs {rows_needed} rows of "
+                                 f"{width} texels, over GL_MAX_TEXTURE_SIZE {self._limit}")
+            return self._keep(_table_texture(ctx, np.ascontiguousarray(rows), dtype, width, self._limit))
+
+        # Step 2: a texel's k² weights are consecutive; the W x H map points at the first.
+        kernels = table("kernels", data.kernels.reshape(-1, 3).astype(np.float32), "f4")
+        first = np.full((h * w, 2), -1, dtype=np.int32)
+        first[data.texels] = _texels(np.arange(len(data.texels)) * data.kernel_size ** 2, kernels.width)
+        texel_kernel = self._keep(ctx.texture((w, h), 2, first.tobytes(), dtype="i4"))
+        texel_kernel.filter = (moderngl.NEAREST, moderngl.NEAREST)
+
+        # Step 3: texel -> corner transposed to CSR by vertex.
+        corners = data.texel_vertices.reshape(-1)
+        order = np.argsort(corners, kind="stable")
+        weights = np.column_stack([data.texel_direct.reshape(-1, 3)[order], data.texel_dual.reshape(-1)[order]])
+        corner_entries = table("texel corners", _texels(np.repeat(data.texels, 3)[order], w), "i4")
+        corner_weights = table("texel corners", weights.astype(np.float32), "f4")
+        corner_rows = table("vertices", _rows(np.bincount(corners, minlength=n), corner_entries.width), "i4",
+                            self.vertex_width)
+
+        # Step 4: F's rows; an entry's source is a texel of the per-vertex layout.
+        f_entries = table("F", _texels(data.f_indices, self.vertex_width), "i4")
+        f_values = table("F", data.f_values.astype(np.float32), "f4")
+        f_rows = table("vertices", _rows(np.diff(data.f_indptr), f_entries.width), "i4", self.vertex_width)
+
+        local = program("kernels_screen.vert", "kernels_filter.frag")
+        gather = program("kernels_screen.vert", "kernels_gather.frag")
+        screen = self._keep(ctx.vertex_array(local, []))
+        gather_screen = self._keep(ctx.vertex_array(gather, []))
+        return [
+            _Pass(local, screen, self._target(self.local),
+                  {"u_illumination": self.illumination, "u_texel_kernel": texel_kernel, "u_kernels": kernels},
+                  {"u_kernel_radius": data.radius}, 3),
+            _Pass(gather, gather_screen, self._target(self.direct),
+                  {"u_rows": corner_rows, "u_entries": corner_entries, "u_weights": corner_weights,
+                   "u_source": self.illumination}, {"u_channel": 0}, 3),
+            _Pass(gather, gather_screen, self._target(self.global_),
+                  {"u_rows": f_rows, "u_entries": f_entries, "u_weights": f_values, "u_source": self.direct},
+                  {"u_channel": 3}, 3),
+        ]
+
+    def _lighting(self, program, item, light, light_view_projection, shadow_extent, shadow_size) -> list[_Pass]:
+        """Steps 1 (shadow map, then E): geometry and passes."""
+        import moderngl
+
+        data, ctx = self.data, self.ctx
+        # One point per border texel at its centre, its surface point blended in object space from
+        # any render vertex of each welded vertex (the model matrix is affine, the normal matrix
+        # linear: blending commutes with both), then the mesh; the shadow map holds the mesh only.
+        render_vertex = np.zeros(data.vertex_count, dtype=np.int64)
+        render_vertex[item["vertex_ids"]] = np.arange(len(item["vertex_ids"]))
+        border_corners = render_vertex[data.border_vertices]
+        points = len(border_corners)
+        rows, cols = np.divmod(data.border_texels, data.width)
+        centres = np.column_stack([(cols + 0.5) / data.width, (rows + 0.5) / data.height])
+        arrays = [(np.concatenate([np.einsum("ba,bad->bd", data.border_barycentric,
+                                             np.asarray(item[key])[border_corners]), item[key]]), fmt, name)
+                  for key, fmt, name in (("positions", "3f", "in_position"), ("normals", "3f", "in_normal"))]
+        arrays.append((np.concatenate([centres, item["uvs"]]), "2f", "in_uv"))
+        buffers = [self._keep(ctx.buffer(np.ascontiguousarray(a, np.float32).tobytes())) for a, _, _ in arrays]
+        indices = self._keep(ctx.buffer(np.concatenate([np.arange(points), np.asarray(item["faces"]).reshape(-1)
+                                                        + points]).astype(np.uint32).tobytes()))
+        triangles = 3 * len(item["faces"])
+
+        def vao(prog):
+            content = [(buf, fmt, name) for buf, (_, fmt, name) in zip(buffers, arrays) if name in prog]
+            return self._keep(ctx.vertex_array(prog, content, index_buffer=indices, index_element_size=4))
+
+        shadow_map = self._keep(ctx.depth_texture((shadow_size, shadow_size)))
+        shadow_map.compare_func = ""  # read depths and compare in the shader
+        shadow_map.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        model = np.asarray(item["model"], dtype=np.float64)
+        transforms = {"u_model": _mat(model), "u_normal_matrix": _mat(np.linalg.inv(model[:3, :3]).T),
+                      "u_view_projection": _mat(light_view_projection)}
+        lighting = {**transforms, "u_eta": float(item["eta"]), "u_point_light": int(light.point),
+                    "u_light": tuple(map(float, light.vector)), "u_intensity": float(light.intensity),
+                    "u_mm_per_unit": float(light.mm_per_unit), "u_light_view_projection": _mat(light_view_projection),
+                    "u_shadow_offset": SHADOW_OFFSET_TEXELS * shadow_extent / shadow_size}
+        shadow = program("plain.vert", "kernels_depth.frag")
+        lit = program("kernels_atlas.vert", "kernels_illumination.frag")
+        lit_vao, lit_target = vao(lit), self._target(self.illumination)
+        return [
+            _Pass(shadow, vao(shadow), self._keep(ctx.framebuffer(depth_attachment=shadow_map)), {}, transforms,
+                  triangles, points, clear=True),
+            _Pass(lit, lit_vao, lit_target, {"u_shadow": shadow_map}, lighting, points, clear=True,
+                  mode=moderngl.POINTS),
+            _Pass(lit, lit_vao, lit_target, {"u_shadow": shadow_map}, lighting, triangles, points),
+        ]
+
+    @property
+    def surface_textures(self) -> dict:
+        """The final pass's samplers: local response (bilinear), B_d and B_g."""
+        return {"u_local": self.local, "u_direct": self.direct, "u_global": self.global_}
+
+    def vertex_texels(self, vertex_ids: np.ndarray) -> np.ndarray:
+        """(m, 2) int32 texel of each welded vertex in `vertex_ids` in the per-vertex textures."""
+        return _texels(np.asarray(vertex_ids), self.vertex_width)
+
+    def run(self, illumination: np.ndarray | None = None) -> None:
+        """Passes 1-4, then bind the target framebuffer again.
+
+        Parameters
+        ----------
+        illumination : (height, width) float, optional
+            E to filter and distribute instead of rendering passes 1-2 (row 0 = atlas row 0).
+        """
+        import moderngl
+
+        self.ctx.enable(moderngl.DEPTH_TEST)  # for the shadow map; targets without depth pass all
+        if illumination is None:
+            for p in self._light_passes:
+                p.run()
+        else:
+            e = np.asarray(illumination, dtype=np.float32)
+            if e.shape != (self.data.height, self.data.width) or not np.all(np.isfinite(e)):
+                raise ValueError(f"kernels runtime: illumination must be finite with shape "
+                                 f"{(self.data.height, self.data.width)}, got {e.shape}")
+            self.illumination.write(np.ascontiguousarray(e).tobytes())
+        for p in self._response_passes:
+            p.run()
+        self.target.use()
+
+    def read(self) -> dict:
+        """The last run's results.
+
+        Returns
+        -------
+        dict
+            ``illumination`` (height, width) float32, row 0 = atlas row 0; ``local`` (S, 3) B_l at
+            ``texels``; ``e_g`` (n,); ``b_d`` (n, 3); ``b_g`` (n, 3).
+        """
+        d = self.data
+        e = _read(self.illumination, 1).reshape(d.height, d.width)
+        direct = _read(self.direct, 4)[: d.vertex_count]
+        return {"illumination": e, "local": _read(self.local, 4)[d.texels, :3], "e_g": direct[:, 3],
+                "b_d": direct[:, :3], "b_g": _read(self.global_, 4)[: d.vertex_count, :3]}
+
+    def release(self) -> None:
+        for o in reversed(self._objects):
+            o.release()
+        self._objects = []
+
+    def _keep(self, obj):
+        self._objects.append(obj)
+        return obj
+
+    def _target(self, texture):
+        return self._keep(self.ctx.framebuffer(color_attachments=[texture]))
+
+
+class _Pass:
+    """One draw (`vertices` indices from `first`) into a framebuffer with its samplers and
+    uniforms, set again every run (passes of several items share the renderer's programs)."""
+
+    def __init__(self, program, vao, framebuffer, samplers: dict, uniforms: dict, vertices: int, first: int = 0,
+                 clear: bool = False, mode: int | None = None):
+        import moderngl
+
+        self.program, self.vao, self.framebuffer = program, vao, framebuffer
+        self.samplers = [(name, tex) for name, tex in samplers.items() if name in program]
+        self.uniforms = {name: value for name, value in uniforms.items() if name in program}
+        self.vertices, self.first, self.clear = vertices, first, clear
+        self.mode = moderngl.TRIANGLES if mode is None else mode
+
+    def run(self) -> None:
+        self.framebuffer.use()
+        if self.clear:
+            self.framebuffer.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        for unit, (name, tex) in enumerate(self.samplers):
+            tex.use(unit)
+            self.program[name].value = unit
+        for name, value in self.uniforms.items():
+            self.program[name].value = value
+        self.vao.render(self.mode, vertices=self.vertices, first=self.first)
+
+
+def _texels(index: np.ndarray, width: int) -> np.ndarray:
+    """(m, 2) int32 (index % width, index // width): where a wrapped table holds entry `index`."""
+    index = np.asarray(index, dtype=np.int64)
+    return np.column_stack([index % width, index // width]).astype(np.int32)
+
+
+def _rows(counts: np.ndarray, width: int) -> np.ndarray:
+    """(n, 4) int32 per CSR row: texel of its first entry in a table `width` wide, entry count, 0."""
+    counts = np.asarray(counts, dtype=np.int64)
+    rows = np.zeros((len(counts), 4), dtype=np.int32)
+    rows[:, :2] = _texels(np.cumsum(counts) - counts, width)
+    rows[:, 2] = counts
+    return rows
+
+
+def _read(texture, components: int) -> np.ndarray:
+    """(texels, components) float32 contents of a float texture, row by row from row 0."""
+    return np.frombuffer(texture.read(), np.float32).reshape(-1, components).copy()
+
+
+def _mat(matrix: np.ndarray) -> tuple:
+    """A row-major matrix as a GLSL (column-major) uniform value."""
+    return tuple(np.asarray(matrix, dtype=np.float64).T.reshape(-1))

@@ -1,0 +1,209 @@
+"""``sssbake tradeoff --technique kernels``: what each knob of the kernels technique (Lensch et al.
+2002) costs and buys, measured as the prt tradeoff measures it (`tradeoff`): image RMSE on [0, 1]
+values against images of the exact offline reference (`reference.reference_scattering`), with
+bytes as stored (16-bit kernels) and precompute seconds, written as JSON, CSV and plots.
+
+One mesh (the largest of the file, all its primitives in one atlas, as the bake does), one
+material, random test lights (seeded). A default configuration (`DEFAULT_RESOLUTION`,
+`KERNELS_DEFAULTS`), then one sweep per knob that changes that knob alone: atlas resolution,
+kernel size, F's threshold, blending (with and without the §5.4 optimisation, and none), seam
+unfolding. Every configuration is rendered with the GPU runtime (`render`'s kernels draw), so the
+RMSE holds everything the runtime does: shadow-map visibility, texel sampling, the bilinear read.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..exporters.atomic import atomic_path
+from .atlas import compute_atlas
+from .clean import clean_scene
+from .kernels_layout import kernels_bytes
+from .kernels_precompute import BLENDS, KERNELS_DEFAULTS, SEAMS, KernelsOptions, precompute_kernels
+from .load import load_scene
+from .materials import Material
+from .options import BAKE_DEFAULTS
+from .reference import Light, reference_scattering
+from .tradeoff import image_exposure, lit_images, worst_rmse
+from .verify import PLAIN_ALBEDO, _merged
+
+RESOLUTIONS = (256, 512, 1024)
+SIZES = (5, 7, 9)
+THRESHOLDS = (1e-4, 1e-5, 1e-6)
+#: Atlas resolution of the default configuration: the bake's.
+DEFAULT_RESOLUTION = BAKE_DEFAULTS.atlas_resolution
+#: Above this many welded vertices the reference sums far sources through clusters (~1e-3 of q;
+#: the exact sum would take tens of minutes).
+CLUSTERED_ABOVE = 30000
+#: Bits per stored kernel weight the byte counts assume (the bake's default).
+KERNEL_BITS = 16
+#: The swept knobs, in sweep order (each a row key).
+KNOBS = ("atlas_resolution", "kernel_size", "threshold", "blend", "seams")
+
+
+def kernels_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material, out_dir: str | os.PathLike,
+                     resolutions=RESOLUTIONS, sizes=SIZES, thresholds=THRESHOLDS, blends=BLENDS, lights: int = 3,
+                     size: int = 256, seed: int = 0, resolution: int = DEFAULT_RESOLUTION,
+                     options: KernelsOptions = KERNELS_DEFAULTS) -> dict:
+    """Run the sweeps and write ``<stem>.tradeoff.kernels.json``, ``.csv`` and ``.png`` into `out_dir`.
+
+    Parameters
+    ----------
+    path : path
+        A mesh file; its largest mesh (most welded vertices) is used.
+    mm_per_unit : float
+    material : Material
+    out_dir : path
+    resolutions, sizes, thresholds, blends : sequences
+        The values of the atlas resolution, kernel size, threshold and blend sweeps.
+    lights : int
+        Random test lights; each row's RMSE is the worst over them.
+    size : int
+        Image width and height in pixels.
+    seed : int
+        Seed of the test lights.
+    resolution : int
+        Atlas resolution of the default configuration.
+    options : KernelsOptions
+        The default configuration's other knobs.
+
+    Returns
+    -------
+    dict
+        ``rows`` (the default first, ``sweep = "default"``, then one per sweep value: ``sweep``,
+        ``atlas_resolution``, ``kernel_size``, ``threshold``, ``blend``, ``seams``, ``bytes``,
+        ``bytes_per_vertex``, ``nnz``, ``seconds`` (precompute + atlas), ``atlas_seconds``,
+        ``rmse_image``), ``frame_ms_sss`` (the default configuration), ``frame_ms_plain``,
+        ``frame_ratio``, ``asset``, ``vertices``, ``material``, ``mm_per_unit``, ``lights``,
+        ``image_size``, ``outputs``.
+    """
+    from .render import Renderer, RenderLight, fit_camera
+
+    path = Path(path)
+    clean = clean_scene(load_scene(str(path)))
+    mi = max(range(len(clean.surfaces)), key=lambda i: len(clean.surfaces[i].positions))
+    surface, prims = clean.surfaces[mi], clean.scene.meshes[mi].primitives
+    parts = [(p.positions, p.faces) for p in prims]
+    render_vertices = [(p.positions, p.normals) for p in prims]
+
+    rng = np.random.default_rng(seed)
+    test = rng.normal(size=(lights, 3))
+    test /= np.linalg.norm(test, axis=1, keepdims=True)
+    clustered = len(surface.positions) > CLUSTERED_ABOVE
+    reference = [reference_scattering(surface, mm_per_unit, material, Light("directional", tuple(d)),
+                                      clustered=clustered) for d in test]  # each (3, n welded)
+
+    renderer = Renderer((size, size))
+    camera = fit_camera(surface.positions)
+    # The reference is drawn on the file's own render vertices: the atlas only copies them.
+    whole = _merged(prims)
+    welded = np.concatenate(surface.weld)
+    base = dict(positions=whole.positions, normals=whole.normals, faces=whole.faces, model=np.eye(4),
+                eta=material.eta)
+    reference_images = [image for image, _ in lit_images(renderer, camera, base, test,
+                                                         [q[:, welded] for q in reference])]
+    exposure = image_exposure(reference_images)
+
+    # One gutter for every atlas, wide enough for the largest kernel, so that the kernel-size
+    # sweep changes the kernels alone.
+    padding = max(4, (max([*sizes, options.kernel_size]) + 1) // 2)
+    atlases = {}
+
+    def atlas_for(res: int):
+        if res not in atlases:
+            t = time.perf_counter()
+            atlas = compute_atlas(parts, res, padding)
+            atlases[res] = (atlas, time.perf_counter() - t)
+        return atlases[res]
+
+    def draw_item(atlas, data) -> dict:
+        cut = [replace(p, positions=p.positions[part.vmapping], normals=p.normals[part.vmapping], faces=part.faces,
+                       uvs=(part.uvs,), tangents=None, colors=None) for p, part in zip(prims, atlas.parts)]
+        merged = _merged(cut)
+        return dict(positions=merged.positions, normals=merged.normals, faces=merged.faces, model=np.eye(4),
+                    eta=material.eta, kernels=data, uvs=merged.uvs[-1],
+                    vertex_ids=np.concatenate([w[part.vmapping] for w, part in zip(surface.weld, atlas.parts)]))
+
+    def measure(res: int, opts: KernelsOptions) -> tuple[dict, dict]:
+        atlas, atlas_seconds = atlas_for(res)
+        pre = precompute_kernels(surface, atlas, render_vertices, mm_per_unit, material, opts)
+        item = draw_item(atlas, pre.data)
+        images = [renderer.render([item], camera, RenderLight(False, tuple(d), 1.0))[0] for d in test]
+        stored = kernels_bytes(pre.data, KERNEL_BITS)
+        row = {"atlas_resolution": res, "kernel_size": opts.kernel_size, "threshold": opts.threshold,
+               "blend": opts.blend, "seams": opts.seams, "bytes": stored["total"],
+               "bytes_per_vertex": stored["perVertex"], "nnz": pre.data.nnz,
+               "seconds": sum(pre.seconds.values()) + atlas_seconds, "atlas_seconds": atlas_seconds,
+               "rmse_image": worst_rmse(images, reference_images, exposure)}
+        return row, item
+
+    default_row, default_item = measure(resolution, options)
+    rows = [{"sweep": "default", **default_row}]
+    sweeps = [("atlas_resolution", [(res, options) for res in resolutions]),
+              ("kernel_size", [(resolution, replace(options, kernel_size=k)) for k in sizes]),
+              ("threshold", [(resolution, replace(options, threshold=th)) for th in thresholds]),
+              ("blend", [(resolution, replace(options, blend=b)) for b in blends]),
+              ("seams", [(resolution, replace(options, seams=s)) for s in SEAMS])]
+    for sweep, configs in sweeps:
+        for res, opts in configs:
+            row = default_row if (res, opts) == (resolution, options) else measure(res, opts)[0]
+            rows.append({"sweep": sweep, **row})
+
+    light = RenderLight(False, tuple(test[0]), 1.0)
+    frame_sss = renderer.frame_ms([default_item], camera, light)
+    frame_plain = renderer.frame_ms([{**base, "albedo": PLAIN_ALBEDO}], camera, light)
+    renderer.release()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = out_dir / f"{path.stem}.tradeoff.kernels"
+    result = {"asset": str(path), "vertices": len(surface.positions), "material": material.name,
+              "mm_per_unit": mm_per_unit, "lights": test.tolist(), "image_size": [size, size], "rows": rows,
+              "frame_ms_sss": frame_sss, "frame_ms_plain": frame_plain,
+              "frame_ratio": frame_sss / max(frame_plain, 1e-9),
+              "outputs": {"json": f"{stem}.json", "csv": f"{stem}.csv", "plot": f"{stem}.png"}}
+    _write(result, stem)
+    return result
+
+
+def _write(result: dict, stem: Path) -> None:
+    rows = result["rows"]
+    with atomic_path(f"{stem}.json") as tmp:
+        Path(tmp).write_text(json.dumps(result, indent=1))
+    with atomic_path(f"{stem}.csv") as tmp, open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    _plot(rows, f"{stem}.png")
+
+
+def _plot(rows: list[dict], path: str) -> None:
+    """One column per knob: image RMSE against bytes per vertex (top) and bake seconds (bottom),
+    each point labelled with the knob's value."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(KNOBS), figsize=(4.2 * len(KNOBS), 8), squeeze=False)
+    for col, knob in enumerate(KNOBS):
+        sel = [r for r in rows if r["sweep"] == knob]
+        for ax, x, label in ((axes[0, col], "bytes_per_vertex", "bytes per vertex (16-bit kernels)"),
+                             (axes[1, col], "seconds", "bake seconds (atlas + precompute)")):
+            # a line only where the knob is a number (blend and seams are choices)
+            ax.plot([r[x] for r in sel], [r["rmse_image"] for r in sel], "o" if knob in ("blend", "seams") else "o-")
+            for r in sel:
+                ax.annotate(f"{r[knob]:g}" if isinstance(r[knob], float) else str(r[knob]), (r[x], r["rmse_image"]),
+                            textcoords="offset points", xytext=(4, 4), fontsize=8)
+            ax.set(xlabel=label, ylabel="image RMSE", title=knob.replace("_", " "))
+            ax.ticklabel_format(useOffset=False)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=90)
+    plt.close(fig)

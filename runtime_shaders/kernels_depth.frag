@@ -1,0 +1,3 @@
+// Shadow-map pass of the kernels runtime: depth only (drawn with plain.vert from the light).
+void main() {
+}
