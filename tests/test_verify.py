@@ -71,10 +71,11 @@ def test_kernels_export_renders_close_to_the_reference_and_blending_matters(tmp_
                      "--json"]) == 0
         results[blend] = json.loads(capsys.readouterr().out)
         report = json.loads((out / "sphere.report.json").read_text())
-        assert results[blend]["bytes_per_vertex"] == report["kernels"]["sphere"]["bytes"]["perVertex"] > 0
+        (mesh_report,) = report["kernels"].values()
+        assert results[blend]["bytes_per_vertex"] == mesh_report["bytes"]["perVertex"] > 0
     result = results["optimised"]
     assert KEYS <= set(result) and result["technique"] == "kernels"
-    assert result["rmse_object"] < 0.75 * result["rmse_object_lambert"]
+    assert result["rmse_object"] < min(0.02, result["rmse_object_lambert"])
     # local and global responses simply added count the light twice where it enters (§5.4)
     assert results["none"]["rmse_object"] > 2 * result["rmse_object"]
     assert main(["verify", str(tmp_path / "optimised" / "sphere.glb"), "--technique", "prt"]) == 1
