@@ -18,12 +18,12 @@ RD = total_diffuse_reflectance(P.alpha_prime, P.eta)
 
 @pytest.fixture(scope="module")
 def surface():
-    return flat_surface(1.0, 20)  # 41 × 41 vertices, 40 mm: ~10 diffusion lengths of skin1's red
+    return flat_surface(1.0, 14)  # 29 × 29 vertices, 28 mm: ~7 diffusion lengths of skin1's red
 
 
 @pytest.fixture(scope="module")
 def bakes(surface):
-    atlas = plane_atlas(surface, 256)  # ~0.17 mm texels, six per vertex spacing
+    atlas = plane_atlas(surface, 180)  # ~0.17 mm texels, six per vertex spacing
     return {blend: precompute_kernels(surface, atlas, [(surface.positions, surface.normals)], 1.0, SKIN,
                                       KernelsOptions(blend=blend))
             for blend in ("optimised", "fixed", "none")}
@@ -38,11 +38,14 @@ def _image(pre, values_real, values_border=None):
 
 
 def _half_plane(s: np.ndarray) -> np.ndarray:
-    """(m, 3) ∫ Rd(|p - x|) dp over the lit half-plane, for points at signed distance s (mm) inside it."""
+    """(m, 3) ∫ Rd(|p - x|) dp over the lit half-plane, for points at signed distance s (mm) inside it
+    (tabulated over s, then interpolated)."""
+    grid = np.linspace(-10.0, 10.0, 801)
     r = np.geomspace(1e-4, 400.0, 20000)
     rd = diffuse_reflectance_profile(r, P)  # (R, 3)
-    angle = 2.0 * np.arccos(np.clip(-s[:, None] / r[None, :], -1.0, 1.0))  # share of the circle lit
-    return np.stack([np.trapezoid(rd[None, :, c] * r[None, :] * angle, r, axis=1) for c in range(3)], axis=1)
+    angle = 2.0 * np.arccos(np.clip(-grid[:, None] / r[None, :], -1.0, 1.0))  # the lit share of each circle
+    table = np.stack([np.trapezoid(rd[None, :, c] * r[None, :] * angle, r, axis=1) for c in range(3)], axis=1)
+    return np.stack([np.interp(s, grid, table[:, c]) for c in range(3)], axis=1)
 
 
 def test_uniform_light_on_a_plane_gives_rd(bakes):
@@ -61,7 +64,7 @@ def test_illumination_edge_is_sharper_with_the_blending_optimisation(bakes):
     for blend, pre in bakes.items():
         x = pre.positions[:, 0]
         q = texel_q(pre.data, _image(pre, (x < 0).astype(float)), pre.barycentric)
-        near = (np.abs(x) < 4.0) & (np.abs(pre.positions[:, 1]) < 8.0)
+        near = (np.abs(x) < 4.0) & (np.abs(pre.positions[:, 1]) < 6.0)
         exact = _half_plane(-x[near])
         errors[blend] = np.sqrt(np.mean((q[near] - exact) ** 2) / np.mean(exact**2))  # all channels, as images
     assert errors["optimised"] < 0.05, errors
