@@ -164,6 +164,16 @@ def read_accessor(gltf: g.GLTF2, index: int, blob: bytes | None = None) -> np.nd
     return values
 
 
+def technique_tables(gltf: g.GLTF2, mesh: g.Mesh, technique: str, blob: bytes | None = None) -> dict | None:
+    """A mesh's ``extras.sssbake[technique]`` with every ``{"accessor": i}`` read into its array;
+    None when the mesh has no such data."""
+    tables = ((mesh.extras or {}).get("sssbake") or {}).get(technique)
+    if tables is None:
+        return None
+    return {k: read_accessor(gltf, v["accessor"], blob) if isinstance(v, dict) and "accessor" in v else v
+            for k, v in tables.items()}
+
+
 def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
     """Encode `asset` as GLB bytes.
 

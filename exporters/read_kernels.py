@@ -16,7 +16,7 @@ import pygltflib
 
 from ..pipeline.kernels_data import KernelsData
 from ..pipeline.kernels_layout import VERTEX_KEY, kernels_data_from_tables, vertex_ids_from_layout
-from .gltf import read_accessor
+from .gltf import read_accessor, technique_tables
 
 
 class KernelsReadError(ValueError):
@@ -30,11 +30,9 @@ def read_kernels_glb(path: str | os.PathLike) -> dict[tuple[int, int], tuple[Ker
     blob = gltf.binary_blob()
     out = {}
     for i, mesh in enumerate(gltf.meshes):
-        tables = ((mesh.extras or {}).get("sssbake") or {}).get("kernels")
-        if tables is None:
+        resolved = technique_tables(gltf, mesh, "kernels", blob)
+        if resolved is None:
             continue
-        resolved = {k: read_accessor(gltf, v["accessor"], blob) if isinstance(v, dict) and "accessor" in v else v
-                    for k, v in tables.items()}
         data = kernels_data_from_tables(resolved)
         name = resolved["attributes"]["vertex"]
         for j, prim in enumerate(mesh.primitives):

@@ -14,7 +14,7 @@ import pygltflib
 
 from ..pipeline.prt_data import PrtData
 from ..pipeline.prt_layout import prt_from_layout
-from .gltf import dequantize, read_accessor
+from .gltf import dequantize, read_accessor, technique_tables
 
 PRIMVAR_PREFIX = "primvars:sss:prt:"
 
@@ -30,11 +30,9 @@ def read_prt_glb(path: str | os.PathLike) -> dict[tuple[int, int], PrtData]:
     blob = gltf.binary_blob()
     out = {}
     for i, mesh in enumerate(gltf.meshes):
-        tables = ((mesh.extras or {}).get("sssbake") or {}).get("prt")
-        if tables is None:
+        resolved = technique_tables(gltf, mesh, "prt", blob)
+        if resolved is None:
             continue
-        resolved = {k: read_accessor(gltf, v["accessor"], blob) if isinstance(v, dict) and "accessor" in v else v
-                    for k, v in tables.items()}
         names = _attribute_names(resolved)
         for j, prim in enumerate(mesh.primitives):
             per_vertex = {}

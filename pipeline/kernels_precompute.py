@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 from .atlas import Atlas
 from .atlas_surface import atlas_surface
 from .clean import Surface, triangle_areas
-from .dipole import DipoleParams, diffuse_reflectance_profile, disc_integral
+from .dipole import DipoleParams, disc_integral
 from .kernels_border import border_texels
 from .kernels_data import KernelsData
 from .materials import Material

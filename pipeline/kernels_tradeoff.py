@@ -13,8 +13,6 @@ RMSE holds everything the runtime does: shadow-map visibility, texel sampling, t
 
 from __future__ import annotations
 
-import csv
-import json
 import os
 import time
 from dataclasses import replace
@@ -31,7 +29,7 @@ from .load import load_scene
 from .materials import Material
 from .options import BAKE_DEFAULTS
 from .reference import Light, reference_scattering
-from .tradeoff import image_exposure, lit_images, worst_rmse
+from .tradeoff import image_exposure, lit_images, worst_rmse, write_outputs
 from .verify import PLAIN_ALBEDO, _merged
 
 RESOLUTIONS = (256, 512, 1024)
@@ -168,19 +166,8 @@ def kernels_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mate
               "frame_ms_sss": frame_sss, "frame_ms_plain": frame_plain,
               "frame_ratio": frame_sss / max(frame_plain, 1e-9),
               "outputs": {"json": f"{stem}.json", "csv": f"{stem}.csv", "plot": f"{stem}.png"}}
-    _write(result, stem)
+    write_outputs(result, stem, _plot)
     return result
-
-
-def _write(result: dict, stem: Path) -> None:
-    rows = result["rows"]
-    with atomic_path(f"{stem}.json") as tmp:
-        Path(tmp).write_text(json.dumps(result, indent=1))
-    with atomic_path(f"{stem}.csv") as tmp, open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    _plot(rows, f"{stem}.png")
 
 
 def _plot(rows: list[dict], path: str) -> None:

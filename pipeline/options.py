@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 
 from .kernels_layout import KERNEL_BITS
-from .kernels_precompute import BLENDS, KERNELS_DEFAULTS, SEAMS, KernelsOptions
+from .kernels_precompute import KERNELS_DEFAULTS, KernelsOptions
 from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, TABLES, WEIGHT_BITS, WEIGHTS
 from .scatter_operator import SCATTER_DEFAULTS
 from .sh import MAX_ORDER

@@ -135,7 +135,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
               "frame_ms_sss": frame_sss, "frame_ms_plain": frame_plain,
               "frame_ratio": frame_sss / max(frame_plain, 1e-9),
               "outputs": {"json": f"{stem}.json", "csv": f"{stem}.csv", "plot": f"{stem}.png"}}
-    _write(result, stem)
+    write_outputs(result, stem)
     return result
 
 
@@ -178,7 +178,9 @@ def worst_rmse(images: list[np.ndarray], reference: list[np.ndarray], exposure: 
     return max(rmse(a, b, exposure, m) for a, b, m in zip(images, reference, masks))
 
 
-def _write(result: dict, stem: Path) -> None:
+def write_outputs(result: dict, stem: Path, plot=None) -> None:
+    """``stem.json`` (the result), ``stem.csv`` (its rows) and ``stem.png`` (``plot(rows, path)``,
+    prt's Pareto plots by default), each written atomically."""
     rows = result["rows"]
     with atomic_path(f"{stem}.json") as tmp:
         Path(tmp).write_text(json.dumps(result, indent=1))
@@ -186,7 +188,7 @@ def _write(result: dict, stem: Path) -> None:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    _plot(rows, f"{stem}.png")
+    (plot or _plot)(rows, f"{stem}.png")
 
 
 def _plot(rows: list[dict], path: str) -> None:

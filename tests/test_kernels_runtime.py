@@ -34,7 +34,7 @@ def renderers():
 
 def atlas_kernels(width, height, n, texels, border_texels=(), border_vertices=(), border_barycentric=()):
     """KernelsData over `texels` with zero weights (what the light passes do not read)."""
-    s, b = len(texels), len(border_texels)
+    s = len(texels)
     data = KernelsData(
         width=width, height=height, kernel_size=3, vertex_count=n, texels=np.asarray(texels, np.int64),
         kernels=np.zeros((s, 9, 3), np.float32), texel_vertices=np.zeros((s, 3), np.int64),
