@@ -36,7 +36,8 @@ def _bake(args) -> int:
     for name in ("techniques", "prt_directions", "prt_energy_dropped", "prt_mode", "prt_reference_fraction",
                  "prt_sh_order", "prt_weights", "prt_tables", "prt_refine",
                  "prt_weight_bits", "prt_byte_budget", "prt_reference_floor", "prt_detail_order",
-                 "kernels_size", "kernels_threshold", "kernels_blend", "kernels_seams", "kernels_bits"):
+                 "kernels_size", "kernels_threshold", "kernels_blend", "kernels_seams", "kernels_bits",
+                 "kernels_global_vertices"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -239,6 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--kernels-seams", choices=SEAMS,
                    help=f"kernels: unfold the surface across chart seams into the gutter, or not (default "
                         f"{BAKE_DEFAULTS.kernels_seams})")
+    b.add_argument("--kernels-global-vertices", type=int,
+                   help=f"kernels: surfaces with more vertices get their global response on a copy simplified to "
+                        f"about this many, 0 for never (default {BAKE_DEFAULTS.kernels_global_vertices})")
     b.add_argument("--kernels-bits", type=int, choices=KERNEL_BITS,
                    help=f"kernels: bits per stored kernel weight (default {BAKE_DEFAULTS.kernels_bits})")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")

@@ -1,9 +1,11 @@
 """The kernels technique's data for one mesh (Lensch et al. 2002): what the precompute makes, the
 exporters lay out and the runtimes consume.
 
-Two spaces: the mesh's welded surface vertices (n; the global response lives there) and its texture
-atlas (``width`` × ``height`` texels, glTF UV convention as in `atlas`; the local response lives
-there). At runtime, for one light:
+Three spaces: the mesh's welded surface vertices (``surface_vertex_count``; render vertices map to
+them), the global response's vertices (n = ``vertex_count``: the surface's own, or those of a
+simplified copy of it when the surface is dense; F lives there) and the texture atlas (``width`` ×
+``height`` texels, glTF UV convention as in `atlas`; the local response lives there). At runtime,
+for one light:
 
 1. Illumination map E (H, W): per covered texel and per border texel,
    ``F_t(η, n·ω) max(0, n·ω) vis · irradiance / π`` at the texel's surface point (Schlick F_t
@@ -21,9 +23,10 @@ there). At runtime, for one light:
    · E[s]`` (the blending weights of §5.4), over covered texels only.
 4. Global response: ``B_g[j, c] = Σ_{p = f_indptr[j]}^{f_indptr[j+1]-1} f_values[p, c] ·
    E_g[f_indices[p]]`` (row j lists the sources of receiver j; F's diagonal is zero).
-5. At a surface point x with atlas UV u in triangle (β): ``q(x) = B_l(u) + Σ_β bary_β(x)
-   (B_g + B_d)[β]``, B_l read bilinearly over covered texels only; the eye sees
-   ``F_t(η, ω_o) q(x)`` (the shared final pass).
+5. Each surface vertex v reads the global vertices' radiosity ``B_v[v] = Σ_k surface_weights[v, k]
+   (B_g + B_d)[surface_global[v, k]]``; at a surface point x with atlas UV u in triangle (β):
+   ``q(x) = B_l(u) + Σ_β bary_β(x) B_v[β]``, B_l read bilinearly over covered texels only; the eye
+   sees ``F_t(η, ω_o) q(x)`` (the shared final pass).
 
 q is radiance before the exit Fresnel, per unit irradiance scale of the light (as prt's q).
 """
@@ -48,14 +51,16 @@ class KernelsData:
     kernel_size : int
         k, odd, >= 3.
     vertex_count : int
-        n, welded surface vertices.
+        n, vertices of the global response.
+    surface_vertex_count : int
+        Welded surface vertices.
     texels : (S,) int64
         ``row · width + col`` of every covered texel, strictly increasing.
     kernels : (S, k², 3) float32
         Local gather weights per covered texel, offset and channel (may be negative: §5.4
         subtracts the interpolated global part).
     texel_vertices : (S, 3) int64
-        Welded vertices of the triangle under each covered texel.
+        Global vertices of the triangle under each covered texel's point.
     texel_dual : (S, 3) float32
         ``(3 / A_α)(4 β_α - 1) · A(texel)``: the texel's share of each corner's hat coefficient.
     texel_direct : (S, 3, 3) float32
@@ -68,9 +73,14 @@ class KernelsData:
     border_texels : (b,) int64
         ``row · width + col`` of every border texel, strictly increasing, none covered.
     border_vertices : (b, 3) int64
-        Welded vertices of the triangle each border texel's surface point lies in.
+        Welded surface vertices of the triangle each border texel's surface point lies in.
     border_barycentric : (b, 3) float32
         That point's barycentric weights (non-negative, summing to 1).
+    surface_global : (surface_vertex_count, 3) int64
+        The global triangle each surface vertex lies on (itself three times when the global
+        vertices are the surface's).
+    surface_weights : (surface_vertex_count, 3) float32
+        Its barycentric weights there.
     """
 
     width: int
@@ -88,6 +98,9 @@ class KernelsData:
     border_texels: np.ndarray
     border_vertices: np.ndarray
     border_barycentric: np.ndarray
+    surface_vertex_count: int
+    surface_global: np.ndarray
+    surface_weights: np.ndarray
 
     @property
     def radius(self) -> int:
@@ -114,7 +127,8 @@ class KernelsData:
         shapes = {"kernels": (s, k * k, 3), "texel_vertices": (s, 3), "texel_dual": (s, 3),
                   "texel_direct": (s, 3, 3), "f_indptr": (n + 1,), "f_values": (self.nnz, 3),
                   "border_vertices": (len(self.border_texels), 3),
-                  "border_barycentric": (len(self.border_texels), 3)}
+                  "border_barycentric": (len(self.border_texels), 3),
+                  "surface_global": (self.surface_vertex_count, 3), "surface_weights": (self.surface_vertex_count, 3)}
         for name, shape in shapes.items():
             if getattr(self, name).shape != shape:
                 raise KernelsDataError(f"kernels: {name} has shape {getattr(self, name).shape}, expected {shape}")
@@ -124,12 +138,13 @@ class KernelsData:
                 raise KernelsDataError(f"kernels: {name} must be strictly increasing pixel indices inside the atlas")
         if np.intersect1d(self.texels, self.border_texels).size:
             raise KernelsDataError("kernels: a border texel is also a covered texel")
-        for name in ("texel_vertices", "f_indices", "border_vertices"):
+        for name, count in (("texel_vertices", n), ("f_indices", n), ("surface_global", n),
+                            ("border_vertices", self.surface_vertex_count)):
             a = getattr(self, name)
-            if a.size and (a.min() < 0 or a.max() >= n):
-                raise KernelsDataError(f"kernels: {name} must index the {n} surface vertices")
+            if a.size and (a.min() < 0 or a.max() >= count):
+                raise KernelsDataError(f"kernels: {name} must index 0..{count - 1}")
         if self.f_indptr[0] != 0 or self.f_indptr[-1] != self.nnz or np.any(np.diff(self.f_indptr) < 0):
             raise KernelsDataError("kernels: f_indptr must rise from 0 to the entry count")
-        for name in ("kernels", "texel_dual", "texel_direct", "f_values", "border_barycentric"):
+        for name in ("kernels", "texel_dual", "texel_direct", "f_values", "border_barycentric", "surface_weights"):
             if not np.all(np.isfinite(getattr(self, name))):
                 raise KernelsDataError(f"kernels: {name} holds NaN or Inf")

@@ -32,6 +32,7 @@ BLOCKS = {
     "distribution": ("texelVertices", "texelDual", "texelDirect"),
     "f": ("fIndptr", "fIndices", "fValues"),
     "border": ("borderTexels", "borderVertices", "borderBarycentric"),
+    "surface": ("surfaceGlobal", "surfaceWeights"),
 }
 
 #: Texels encoded at a time: bounds the float64 temporaries of `encode_kernels`.
@@ -118,11 +119,11 @@ def kernels_vertex_attributes(data: KernelsData, vertices: np.ndarray) -> tuple[
     Returns
     -------
     tuple of VertexAttribute
-        ``sss:kernels:vertex``: (p,) uint16 when ``vertex_count`` < 65536, else (p, 2) uint16
-        ``lo, hi`` with ``vertex = lo + 65536 · hi``.
+        ``sss:kernels:vertex``: (p,) uint16 when ``surface_vertex_count`` < 65536, else (p, 2)
+        uint16 ``lo, hi`` with ``vertex = lo + 65536 · hi``.
     """
     vertices = np.asarray(vertices, dtype=np.int64)
-    n = data.vertex_count
+    n = data.surface_vertex_count
     if vertices.ndim != 1 or (vertices.size and (vertices.min() < 0 or vertices.max() >= n)):
         raise ValueError(f"kernels layout: vertices must be (p,) indices of the {n} welded vertices")
     stored = vertices if n < 65536 else np.column_stack([vertices % 65536, vertices // 65536])
@@ -146,6 +147,8 @@ def _plain_tables(data: KernelsData) -> dict[str, np.ndarray]:
         "borderTexels": data.border_texels.astype(np.uint32),
         "borderVertices": index_table(data.border_vertices),
         "borderBarycentric": data.border_barycentric.astype(np.float32),
+        "surfaceGlobal": index_table(data.surface_global),
+        "surfaceWeights": data.surface_weights.astype(np.float32),
     }
 
 
@@ -162,13 +165,16 @@ def kernels_tables(data: KernelsData, kernel_bits: int = 16) -> dict:
     -------
     dict
         Parameters ``technique`` ("kernels"), ``width``, ``height``, ``kernelSize`` (k),
-        ``kernelBits``, ``vertexCount`` (n), ``texelCount`` (S), ``nnz``, ``borderCount`` (b),
+        ``kernelBits``, ``vertexCount`` (n, global vertices), ``surfaceVertexCount`` (welded surface
+        vertices), ``texelCount`` (S), ``nnz``, ``borderCount`` (b),
         ``attributes`` {``vertex``: ``_SSS_KERNELS_VERTEX``}, ``units``; tables ``texels`` (S,)
         uint32, ``kernelCodes`` (S·k², 3) int8/int16 (row s·k² + o), ``kernelScales`` (S, 3)
         float32, ``texelVertices`` (S, 3) uint16/int64, ``texelDual`` (S, 3) float32,
         ``texelDirect`` (S·3, 3) float32 (row s·3 + a), ``fIndptr`` (n + 1,) uint32, ``fIndices``
         (nnz,) uint16/int64, ``fValues`` (nnz, 3) float32, ``borderTexels`` (b,) uint32,
-        ``borderVertices`` (b, 3) uint16/int64, ``borderBarycentric`` (b, 3) float32; tables with
+        ``borderVertices`` (b, 3) uint16/int64, ``borderBarycentric`` (b, 3) float32,
+        ``surfaceGlobal`` (surfaceVertexCount, 3) uint16/int64, ``surfaceWeights`` (surfaceVertexCount,
+        3) float32; tables with
         no rows are left out. int64 index tables are stored as uint32.
     """
     data.check()
@@ -180,6 +186,7 @@ def kernels_tables(data: KernelsData, kernel_bits: int = 16) -> dict:
         "kernelSize": int(data.kernel_size),
         "kernelBits": int(kernel_bits),
         "vertexCount": int(data.vertex_count),
+        "surfaceVertexCount": int(data.surface_vertex_count),
         "texelCount": int(len(data.texels)),
         "nnz": data.nnz,
         "borderCount": int(len(data.border_texels)),
@@ -204,7 +211,8 @@ def kernels_bytes(data: KernelsData, kernel_bits: int = 16) -> dict:
     -------
     dict
         One int per `BLOCKS` key (``kernels``, ``kernelScales``, ``texels``, ``distribution``,
-        ``f``, ``border``), ``total`` (their sum), ``perVertex`` (total / welded vertices),
+        ``f``, ``border``, ``surface``), ``total`` (their sum), ``perVertex`` (total / welded surface
+        vertices),
         ``perTexel`` (total / covered texels; 0 without any), and ``vertexIdsPerRenderVertex``: the
         bytes each render vertex spends on ``_SSS_KERNELS_VERTEX`` (4: one or two uint16 in a
         4-byte-aligned stride), not in ``total``.
@@ -216,7 +224,7 @@ def kernels_bytes(data: KernelsData, kernel_bits: int = 16) -> dict:
     sizes["kernelScales"] = s * 3 * 4
     out = {block: sum(sizes[name] for name in names) for block, names in BLOCKS.items()}
     total = sum(out.values())
-    out.update(total=total, perVertex=total / data.vertex_count, perTexel=total / s if s else 0.0,
+    out.update(total=total, perVertex=total / data.surface_vertex_count, perTexel=total / s if s else 0.0,
                vertexIdsPerRenderVertex=4)
     return out
 
@@ -269,6 +277,9 @@ def kernels_data_from_tables(tables: dict) -> KernelsData:
         border_texels=_table(tables, "borderTexels", (b,), np.int64),
         border_vertices=_table(tables, "borderVertices", (b, 3), np.int64),
         border_barycentric=_table(tables, "borderBarycentric", (b, 3), np.float32),
+        surface_vertex_count=int(tables["surfaceVertexCount"]),
+        surface_global=_table(tables, "surfaceGlobal", (int(tables["surfaceVertexCount"]), 3), np.int64),
+        surface_weights=_table(tables, "surfaceWeights", (int(tables["surfaceVertexCount"]), 3), np.float32),
     )
     data.check()
     return data
@@ -287,7 +298,7 @@ def vertex_ids_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> n
     stored = np.rint(np.asarray(per_vertex[tables["attributes"]["vertex"]], dtype=np.float64)).astype(np.int64)
     stored = stored.reshape(len(stored), -1)
     ids = stored[:, 0] + (65536 * stored[:, 1] if stored.shape[1] == 2 else 0)
-    n = int(tables["vertexCount"])
+    n = int(tables["surfaceVertexCount"])
     if ids.size and (ids.min() < 0 or ids.max() >= n):
         raise KernelsDataError(f"kernels: vertex ids outside the {n} welded vertices")
     return ids

@@ -38,12 +38,14 @@ from scipy.spatial import cKDTree
 
 from .atlas import Atlas
 from .atlas_surface import atlas_surface
-from .clean import Surface, triangle_areas
+from .clean import Surface, area_weighted_normals, triangle_areas, vertex_areas
 from .dipole import DipoleParams, disc_integral
 from .kernels_border import border_texels
 from .kernels_data import KernelsData
 from .materials import Material
 from .profile_table import ProfileTable
+from .simplify import simplify
+from .surface_locate import locate_on_mesh
 from .texels import rasterize_atlas
 from .throughput import Throughput, throughput_matrix
 
@@ -75,6 +77,9 @@ class KernelsOptions:
         ``"unfold"`` (border texels across seams) or ``"none"`` (kernels stop at chart edges).
     ridge : float
         Weight of the pull towards w0 in the blending fit, per ring texel.
+    global_vertices : int
+        Surfaces with more vertices get their global response (F, the distribution and the
+        blending) on a copy simplified to about this many vertices; 0: always on the surface.
     """
 
     kernel_size: int = 7
@@ -82,6 +87,7 @@ class KernelsOptions:
     blend: str = "optimised"
     seams: str = "unfold"
     ridge: float = 0.05
+    global_vertices: int = 20_000
 
     def check(self) -> None:
         if not (isinstance(self.kernel_size, int) and 3 <= self.kernel_size <= 15 and self.kernel_size % 2):
@@ -91,6 +97,8 @@ class KernelsOptions:
         if self.blend not in BLENDS or self.seams not in SEAMS:
             raise ValueError(f"kernels: blend must be one of {list(BLENDS)} and seams one of {list(SEAMS)}, "
                              f"got {self.blend!r}, {self.seams!r}")
+        if not (isinstance(self.global_vertices, int) and (self.global_vertices == 0 or self.global_vertices >= 100)):
+            raise ValueError(f"kernels: global_vertices must be 0 or at least 100, got {self.global_vertices!r}")
         if not (0 < self.ridge < 1):
             raise ValueError(f"kernels: ridge must be in (0, 1), got {self.ridge!r}")
 
@@ -106,7 +114,7 @@ class KernelsPrecompute:
     ----------
     data : KernelsData
     barycentric : (S, 3) float64
-        Each covered texel's weights on ``data.texel_vertices``.
+        Each covered texel's weights on ``data.texel_vertices`` (its point on the global mesh).
     positions, normals : (S, 3) float64
         Covered texels' surface points (mesh units) and unit normals.
     areas : (S,) float64
@@ -168,7 +176,6 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     mm2 = mm_per_unit * mm_per_unit
     s_count = len(pixels)
     faces = np.r_[real_face, border.faces]
-    corners = surface.faces[faces]
     bary = np.r_[texels.barycentric, border.barycentric]
     border_positions = np.einsum("bk,bkd->bd", border.barycentric, surface.positions[surface.faces[border.faces]])
     border_normals = np.einsum("bk,bkd->bd", border.barycentric, surface.normals[surface.faces[border.faces]])
@@ -188,14 +195,28 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     if len(border.pixels):
         real_of[s_count:] = cKDTree(x[:s_count]).query(x[s_count:])[1]
 
-    cell = surface.vertex_areas * mm2
-    dual, resampled, lost = _dual_weights(corners[:s_count], real_face, texels.barycentric, area[:s_count], cell,
-                                          face_area)
+    # The global response's mesh: the surface itself, or a simplified copy when it is denser than
+    # `global_vertices` (Lensch et al. ran on meshes under 20,000 triangles; F grows as n^4/3).
+    n_s = len(surface.positions)
+    if options.global_vertices and n_s > options.global_vertices:
+        simple = simplify(surface.positions, surface.faces, target_count=2 * options.global_vertices)
+        g_pos, g_faces = simple.positions, simple.faces
+        g_normals = area_weighted_normals(g_pos, g_faces)
+        faces, bary = locate_on_mesh(np.r_[texels.positions, border_positions], g_pos, g_faces)
+        on_face, surface_weights = locate_on_mesh(surface.positions, g_pos, g_faces)
+        surface_global = g_faces[on_face]
+    else:
+        g_pos, g_faces, g_normals = surface.positions, surface.faces, surface.normals
+        surface_global = np.repeat(np.arange(n_s)[:, None], 3, axis=1)
+        surface_weights = np.tile([1.0, 0.0, 0.0], (n_s, 1))
+    corners = g_faces[faces]
+    cell = vertex_areas(g_pos, g_faces) * mm2
+    dual, resampled, lost = _dual_weights(corners[:s_count], faces[:s_count], bary[:s_count], area[:s_count], cell,
+                                          np.bincount(faces[:s_count], weights=area[:s_count], minlength=len(g_faces)))
     seconds["distribution"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    v_mm = surface.positions * mm_per_unit
-    throughput = throughput_matrix(v_mm, surface.faces, surface.normals, params, options.threshold,
+    throughput = throughput_matrix(g_pos * mm_per_unit, g_faces, g_normals, params, options.threshold,
                                    diagonal=options.blend == "none")
     seconds["throughput"] = time.perf_counter() - t
 
@@ -203,9 +224,9 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     rows, cols = np.divmod(np.r_[pixels, border.pixels], width)
     grid = _Grid(index_image, rows, cols, label, width, height)
     local = ProfileTable.build(params, (k + 2) * float(np.sqrt(area.max())) * 2.0)
-    n = len(surface.positions)
+    n = len(g_pos)
     f_keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(throughput.indptr)) * n + throughput.indices
-    ctx = _Context(x, faces, surface.faces, area, corners, bary, real_of, dual, throughput, f_keys, n, local, params)
+    ctx = _Context(x, faces, g_faces, area, corners, bary, real_of, dual, throughput, f_keys, n, local, params)
     # the dropped diagonal F_αα, handed out through the direct term instead
     w0 = dual[:, :, None] * throughput.field.own[corners[:s_count]]
     if options.blend == "optimised":
@@ -220,21 +241,22 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     seconds["kernels"] = time.perf_counter() - t
 
     data = KernelsData(
-        width=width, height=height, kernel_size=k, vertex_count=len(surface.positions), texels=pixels,
+        width=width, height=height, kernel_size=k, vertex_count=n, texels=pixels,
         kernels=kernels.astype(np.float32), texel_vertices=corners[:s_count], texel_dual=dual.astype(np.float32),
         texel_direct=direct.astype(np.float32), f_indptr=throughput.indptr, f_indices=throughput.indices,
-        f_values=throughput.values, border_texels=border.pixels, border_vertices=corners[s_count:],
-        border_barycentric=border.barycentric.astype(np.float32),
+        f_values=throughput.values, border_texels=border.pixels, border_vertices=surface.faces[border.faces],
+        border_barycentric=border.barycentric.astype(np.float32), surface_vertex_count=n_s,
+        surface_global=surface_global, surface_weights=surface_weights.astype(np.float32),
     )
     data.check()
     stats = {
         "texels": int(s_count), "borderTexels": int(len(border.pixels)), "borderTriangles": int(border.triangles),
         "charts": int(layout.face_chart.max() + 1), "atlasCoverage": s_count / float(width * height),
         "verticesResampled": int(resampled), "verticesWithoutTexels": int(lost),
-        "nnz": throughput.nnz, "nnzPerVertex": throughput.nnz / max(len(surface.positions), 1),
+        "globalVertices": int(n), "nnz": throughput.nnz, "nnzPerVertex": throughput.nnz / max(n, 1),
         "throughputRadiusMm": throughput.radius_mm, "throughputSent": throughput.sent.tolist(), **misfit,
     }
-    return KernelsPrecompute(data, texels.barycentric, texels.positions, texels.normals, area[:s_count] / mm2,
+    return KernelsPrecompute(data, bary[:s_count], texels.positions, texels.normals, area[:s_count] / mm2,
                              border_positions,
                              border_normals, stats, seconds)
 

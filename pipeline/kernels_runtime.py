@@ -145,7 +145,7 @@ class KernelsPasses:
         # One point per border texel at its centre, its surface point blended in object space from
         # any render vertex of each welded vertex (the model matrix is affine, the normal matrix
         # linear: blending commutes with both), then the mesh; the shadow map holds the mesh only.
-        render_vertex = np.zeros(data.vertex_count, dtype=np.int64)
+        render_vertex = np.zeros(data.surface_vertex_count, dtype=np.int64)
         render_vertex[item["vertex_ids"]] = np.arange(len(item["vertex_ids"]))
         border_corners = render_vertex[data.border_vertices]
         points = len(border_corners)
@@ -191,8 +191,16 @@ class KernelsPasses:
         return {"u_local": self.local, "u_direct": self.direct, "u_global": self.global_}
 
     def vertex_texels(self, vertex_ids: np.ndarray) -> np.ndarray:
-        """(m, 2) int32 texel of each welded vertex in `vertex_ids` in the per-vertex textures."""
+        """(m, 2) int32 texel of each global vertex in `vertex_ids` in the per-vertex textures."""
         return _texels(np.asarray(vertex_ids), self.vertex_width)
+
+    def surface_attributes(self, vertex_ids: np.ndarray) -> list[tuple[np.ndarray, str, str]]:
+        """The final draw's per-render-vertex inputs for welded surface vertices `vertex_ids` (m,):
+        the texels of the three global vertices each reads and their weights (step 5)."""
+        ids = np.asarray(vertex_ids)
+        corners = self.data.surface_global[ids]
+        return [(self.vertex_texels(corners[:, a]), "2i", f"in_global_texel{a}") for a in range(3)] + [
+            (self.data.surface_weights[ids].astype(np.float32), "3f", "in_global_weight")]
 
     def run(self, illumination: np.ndarray | None = None) -> None:
         """Passes 1-4, then bind the target framebuffer again.

@@ -47,7 +47,7 @@ class BakeOptions:
     prt_mode, prt_reference_fraction, prt_sh_order, prt_weights, prt_tables, prt_refine, prt_weight_bits,
     prt_byte_budget, prt_reference_floor, prt_detail_order
         prt compression (see `prt_compress.PrtCompressOptions`).
-    kernels_size, kernels_threshold, kernels_blend, kernels_seams
+    kernels_size, kernels_threshold, kernels_blend, kernels_seams, kernels_global_vertices
         kernels precompute (see `kernels_precompute.KernelsOptions`).
     kernels_bits : int
         kernels: bits per stored kernel weight (8 or 16).
@@ -77,10 +77,12 @@ class BakeOptions:
     kernels_threshold: float = KERNELS_DEFAULTS.threshold
     kernels_blend: str = KERNELS_DEFAULTS.blend
     kernels_seams: str = KERNELS_DEFAULTS.seams
+    kernels_global_vertices: int = KERNELS_DEFAULTS.global_vertices
     kernels_bits: int = 16
 
     def kernels(self) -> KernelsOptions:
-        return KernelsOptions(self.kernels_size, self.kernels_threshold, self.kernels_blend, self.kernels_seams)
+        return KernelsOptions(self.kernels_size, self.kernels_threshold, self.kernels_blend, self.kernels_seams,
+                              global_vertices=self.kernels_global_vertices)
 
     def to_json(self) -> dict:
         return asdict(self)

@@ -363,7 +363,7 @@ class Renderer:
         elif kind == "kernels":
             passes = self._kernels_passes(item, light)
             extra = [(np.asarray(item["uvs"], np.float32), "2f", "in_uv"),
-                     (passes.vertex_texels(item["vertex_ids"]), "2i", "in_vertex_texel")]
+                     *passes.surface_attributes(item["vertex_ids"])]
             for unit, (name, texture) in enumerate(passes.surface_textures.items()):
                 if name in program:
                     program[name].value = unit
@@ -466,7 +466,8 @@ def _check_kernels(i: int, item: dict, n: int) -> None:
     except ValueError as error:
         raise ValueError(f"render: item {i}: {error}") from None
     ids = np.asarray(item["vertex_ids"])
-    if ids.shape != (n,) or not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0 or ids.max() >= data.vertex_count:
-        raise ValueError(f"render: item {i}: vertex_ids must be ({n},) integers in 0..{data.vertex_count - 1}")
+    count = data.surface_vertex_count
+    if ids.shape != (n,) or not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0 or ids.max() >= count:
+        raise ValueError(f"render: item {i}: vertex_ids must be ({n},) integers in 0..{count - 1}")
     if not np.all(np.isin(data.border_vertices, ids)):
         raise ValueError(f"render: item {i}: border texels use welded vertices no render vertex maps to")

@@ -30,8 +30,9 @@ def plane(spacing: float, half: int) -> tuple[np.ndarray, np.ndarray, int]:
 
 
 def random_kernels(rng, n: int = 40, width: int = 24, height: int = 20, kernel_size: int = 7, texels: int = 150,
-                   per_row: int = 6, borders: int = 5):
-    """Valid `KernelsData` with random values (n welded vertices, a `width` × `height` atlas)."""
+                   per_row: int = 6, borders: int = 5, surface: int | None = None):
+    """Valid `KernelsData` with random values (n global vertices, `surface` welded surface
+    vertices (default n, mapped one to one), a `width` × `height` atlas)."""
     from sssbake.pipeline.kernels_data import KernelsData
 
     k2 = kernel_size * kernel_size
@@ -47,8 +48,13 @@ def random_kernels(rng, n: int = 40, width: int = 24, height: int = 20, kernel_s
         texel_dual=rng.uniform(-0.5, 1.5, (texels, 3)).astype(np.float32),
         texel_direct=rng.uniform(0.0, 0.2, (texels, 3, 3)).astype(np.float32),
         f_indptr=indptr, f_indices=indices, f_values=rng.uniform(1e-5, 0.05, (len(indices), 3)).astype(np.float32),
-        border_texels=border, border_vertices=rng.integers(0, n, (borders, 3)).astype(np.int64),
+        border_texels=border, border_vertices=rng.integers(0, surface or n, (borders, 3)).astype(np.int64),
         border_barycentric=rng.dirichlet(np.ones(3), borders).astype(np.float32),
+        surface_vertex_count=surface or n,
+        surface_global=(np.repeat(np.arange(n)[:, None], 3, axis=1) if surface is None
+                        else rng.integers(0, n, (surface, 3))).astype(np.int64),
+        surface_weights=(np.tile([1.0, 0.0, 0.0], (n, 1)) if surface is None
+                         else rng.dirichlet(np.ones(3), surface)).astype(np.float32),
     )
     data.check()
     return data

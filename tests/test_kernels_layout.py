@@ -38,11 +38,15 @@ USD_PRIMS = ("/a/root/sphere_0", "/a/root/sphere_1")
 
 
 def widened(data: KernelsData, n: int) -> KernelsData:
-    """`data` over n welded vertices, its vertex ids spread (monotonically) to reach beyond 16 bits."""
+    """`data` over n welded (and global) vertices, its vertex ids spread (monotonically) to reach
+    beyond 16 bits; each surface vertex reads a different mix of global ones."""
     step = (n - 1) // (data.vertex_count - 1)
+    rng = np.random.default_rng(n)
     out = replace(data, vertex_count=n, texel_vertices=data.texel_vertices * step, f_indices=data.f_indices * step,
                   border_vertices=data.border_vertices * step,
-                  f_indptr=np.r_[data.f_indptr, np.full(n - data.vertex_count, data.f_indptr[-1])])
+                  f_indptr=np.r_[data.f_indptr, np.full(n - data.vertex_count, data.f_indptr[-1])],
+                  surface_vertex_count=n, surface_global=rng.integers(0, n, (n, 3)),
+                  surface_weights=rng.dirichlet(np.ones(3), n).astype(np.float32))
     out.check()
     return out
 

@@ -125,3 +125,16 @@ def test_local_response_is_the_kernel_sum_under_uniform_light(bakes):
     b_l = local_response(pre.data, _image(pre, 1.0))
     np.testing.assert_allclose(b_l, pre.data.kernels.sum(axis=1), rtol=1e-6)
     assert np.all(pre.data.kernels >= 0)  # unblended kernels are the true local response
+
+
+def test_a_simplified_global_mesh_keeps_the_plane_at_rd(surface):
+    atlas = plane_atlas(surface, 180)
+    pre = precompute_kernels(surface, atlas, [(surface.positions, surface.normals)], 1.0, SKIN,
+                             KernelsOptions(global_vertices=400))
+    d = pre.data
+    assert d.vertex_count < 0.6 * d.surface_vertex_count == 0.6 * len(surface.positions)
+    # every surface vertex sits on its global triangle (a plane simplifies onto itself)
+    assert np.all(d.surface_weights >= 0) and np.allclose(d.surface_weights.sum(axis=1), 1.0)
+    q = texel_q(d, _image(pre, 1.0), pre.barycentric)
+    centre = np.linalg.norm(pre.positions[:, :2], axis=1) < 6.0
+    np.testing.assert_allclose(q[centre].mean(axis=0), RD, rtol=0.03)

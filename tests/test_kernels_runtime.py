@@ -42,7 +42,8 @@ def atlas_kernels(width, height, n, texels, border_texels=(), border_vertices=()
         f_indptr=np.zeros(n + 1, np.int64), f_indices=np.zeros(0, np.int64), f_values=np.zeros((0, 3), np.float32),
         border_texels=np.asarray(border_texels, np.int64),
         border_vertices=np.asarray(border_vertices, np.int64).reshape(-1, 3),
-        border_barycentric=np.asarray(border_barycentric, np.float32).reshape(-1, 3))
+        border_barycentric=np.asarray(border_barycentric, np.float32).reshape(-1, 3), surface_vertex_count=n,
+        surface_global=np.repeat(np.arange(n)[:, None], 3, axis=1), surface_weights=np.tile([1.0, 0, 0], (n, 1)))
     data.check()
     return data
 
@@ -231,7 +232,12 @@ def test_final_image_adds_the_local_response_to_the_vertex_response(renderers, d
     for name, cpu in (("e_g", e_g), ("b_d", b_d), ("b_g", b_g)):
         np.testing.assert_allclose(out[name], cpu, rtol=1e-4, atol=1e-6 * np.abs(cpu).max(), err_msg=name)
     q = (b_g + b_d)[item["vertex_ids"]]
-    if local:
+    if local:  # and each welded vertex blends three global vertices (a simplified global mesh)
+        n = data.surface_vertex_count
+        data = dataclasses.replace(data, surface_global=rng.integers(0, data.vertex_count, (n, 3)),
+                                   surface_weights=rng.dirichlet(np.ones(3), n).astype(np.float32))
+        ids = item["vertex_ids"]
+        q = np.einsum("vk,vkc->vc", data.surface_weights[ids], (b_g + b_d)[data.surface_global[ids]])
         # centre weights c / E make B_l = c on every covered texel, so its coverage-normalised
         # bilinear read is c wherever the surface is (a flipped or shifted read would find none)
         c = np.array([0.05, 0.1, 0.2])
