@@ -86,7 +86,7 @@ class KernelsOptions:
     threshold: float = 1e-5
     blend: str = "optimised"
     seams: str = "unfold"
-    ridge: float = 0.05
+    ridge: float = 0.005
     global_vertices: int = 20_000
 
     def check(self) -> None:
@@ -371,8 +371,12 @@ class _Context:
         """(m, 3 α) Σ_β ψ_β(receiver) [β = α-th corner of source]: how the direct weights of the
         source's corners reach the receiver."""
         cs, cr = self.corners[source], self.corners[receiver]
-        match = cr[:, :, None] == cs[:, None, :]  # (m, β, α)
-        return np.einsum("pb,pba->pa", self.bary[receiver], match)
+        weight = self.bary[receiver]
+        out = np.zeros((len(source), 3))
+        for a in range(3):
+            for b in range(3):
+                out[:, a] += np.where(cr[:, b] == cs[:, a], weight[:, b], 0.0)
+        return out
 
 
 def _fit(ctx: _Context, grid: _Grid, s_count: int, r: int, w0: np.ndarray,
