@@ -15,7 +15,7 @@ Discretisation (float64 throughout, lengths in mm):
 - Global response of a unit irradiance at real texel s, at a surface point y in triangle (β):
   ``g(y, s) = Σ_β ψ_β(y) [Σ_α dual_α(s) F'_αβ + [β ∈ s's corners] w_β(s)]`` with F' = F without
   its diagonal and w the blending weights.
-- Blending (``blend="optimised"``): w(s) per channel by least squares so that g matches T on the
+- Blending (``blend="optimised"``, `_blend`): w(s) per channel by least squares so that g matches T on the
   ring of texels at chessboard distance r + 1 around s (the boundary of the (k + 2)² kernel, where
   the k² kernel no longer reaches), ridge-regularised towards w0 = dual(s) F_αα (the dropped
   diagonal) for weights the ring barely constrains. Then each kernel entry becomes
@@ -229,15 +229,7 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     ctx = _Context(x, faces, g_faces, area, corners, bary, real_of, dual, throughput, f_keys, n, local, params)
     # the dropped diagonal F_αα, handed out through the direct term instead
     w0 = dual[:, :, None] * throughput.field.own[corners[:s_count]]
-    if options.blend == "optimised":
-        direct, misfit = _fit(ctx, grid, s_count, r, w0, options.ridge)
-    else:
-        direct = w0 if options.blend == "fixed" else np.zeros_like(w0)
-        misfit = {}
-    seconds["fit"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    kernels = _kernels(ctx, grid, s_count, r, direct, correct=options.blend != "none")
+    kernels, direct, misfit = _blend(ctx, grid, s_count, r, w0, options.blend, options.ridge)
     seconds["kernels"] = time.perf_counter() - t
 
     data = KernelsData(
@@ -379,91 +371,58 @@ class _Context:
         return out
 
 
-def _fit(ctx: _Context, grid: _Grid, s_count: int, r: int, w0: np.ndarray,
-         ridge: float) -> tuple[np.ndarray, dict]:
-    """Blending weights (S, 3 corners, 3 channels): per source and channel, least squares on the
-    ring at distance r + 1, ridge-pulled towards w0, subject to the energy the smooth part sends
-    beyond the k × k window being what the true response sends there, so that kernels plus
-    smooth part carry exactly the energy of the unblended global response."""
+def _blend(ctx: _Context, grid: _Grid, s_count: int, r: int, w0: np.ndarray, blend: str,
+           ridge: float) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The gather kernels (S, k², 3) and the direct weights (S, 3 corners, 3 channels).
+
+    Per chunk of covered sources, in one pass over each source's window: the true response T and
+    the global part there, the blending fit (``optimised``: least squares on the ring at r + 1,
+    ridge-pulled towards w0, subject to the energy the smooth part sends beyond the window being
+    what T sends there, so kernels plus smooth part carry exactly the energy of the unblended
+    global response), then the kernel entries ``T - g`` of the covered receivers, which see the
+    source at the mirrored offset. Border texels as sources come last, once every weight is known.
+    """
     ring_dy, ring_dx = _ring(r + 1)
     dy, dx = _window(r)
+    mirror = len(dy) - 1 - np.arange(len(dy))  # offset o from s to t is offset mirror[o] from t to s
     cell = ctx.throughput.field.area
-    normal = np.zeros((s_count, 3, 3))
-    rhs = np.zeros((s_count, 3, 3))
-    ring_count = np.zeros(s_count)
-    outside = np.zeros((s_count, 3))
-    budget = np.zeros((s_count, 3))
-    before = np.zeros(3)
-    scale = np.zeros(3)
+    correct = blend != "none"
 
     def chunk(start: int):
         stop = min(s_count, start + CHUNK)
         centres = np.arange(start, stop)
-        sources, _, receivers = grid.pairs(centres, ring_dy, ring_dx)
-        truth = ctx.transport(receivers, sources)
-        target = truth - ctx.global_part(receivers, sources)
-        design = ctx.shared(receivers, sources)
-        local = sources - start
         m = stop - start
-        nn = np.stack([np.bincount(local, weights=design[:, a] * design[:, b], minlength=m)
-                       for a in range(3) for b in range(3)], axis=1).reshape(m, 3, 3)
-        rr = np.stack([np.bincount(local, weights=design[:, a] * target[:, c], minlength=m)
-                       for a in range(3) for c in range(3)], axis=1).reshape(m, 3, 3)
-        # energy inside the window: of the true response, of the global part, of each corner's hat
-        sources, _, receivers = grid.pairs(centres, dy, dx)
-        weight = ctx.area[receivers, None]
-        local_w = sources - start
-        excess = (ctx.transport(receivers, sources) - ctx.global_part(receivers, sources)) * weight
-        hats = ctx.shared(receivers, sources) * weight
-        inside = np.stack([np.bincount(local_w, weights=hats[:, a], minlength=m) for a in range(3)], axis=1)
-        extra = np.stack([np.bincount(local_w, weights=excess[:, c], minlength=m) for c in range(3)], axis=1)
-        corner_cells = cell[ctx.corners[centres]]
-        return (start, nn, rr, np.bincount(local, minlength=m), corner_cells - inside,
-                np.einsum("sa,sac->sc", corner_cells, w0[centres]) - extra,
-                (target**2).sum(axis=0), (truth**2).sum(axis=0))
+        sources, offset, receivers = grid.pairs(centres, dy, dx)
+        local = sources - start
+        truth = ctx.transport(receivers, sources)
+        stats = np.zeros((4, 3))
+        if correct:
+            smooth = ctx.global_part(receivers, sources)
+            hats = ctx.shared(receivers, sources)
+        if blend == "optimised":
+            weights, stats = _fit_chunk(ctx, grid, centres, ring_dy, ring_dx, w0[centres], ridge,
+                                        truth - smooth, hats, local, receivers, cell)
+        else:
+            weights = w0[centres] if blend == "fixed" else np.zeros((m, 3, 3))
+        value = truth
+        if correct:
+            value = truth - smooth - np.einsum("pa,pac->pc", hats, weights[local])
+        real = receivers < s_count
+        return start, weights, receivers[real], mirror[offset[real]], value[real], stats
 
-    with ThreadPoolExecutor(THREADS) as pool:
-        for start, nn, rr, count, out, bud, miss, size in pool.map(chunk, range(0, s_count, CHUNK)):
-            normal[start: start + len(nn)] = nn
-            ring_count[start: start + len(count)] = count
-            rhs[start: start + len(rr)] = rr
-            outside[start: start + len(out)] = out
-            budget[start: start + len(bud)] = bud
-            before += miss
-            scale += size
-    # The pull towards w0 counts as `ridge` of a ring texel per ring texel: a ring the corners'
-    # hats barely reach (small design entries) cannot pull the weights far.
-    lam = ridge * ring_count + 1e-300
-    system = np.zeros((s_count, 4, 4))
-    system[:, :3, :3] = normal + lam[:, None, None] * np.eye(3)
-    right = np.zeros((s_count, 4, 3))
-    right[:, :3] = rhs + lam[:, None, None] * w0
-    # Where the corners' hats barely reach past the window, the energy cannot be steered by w
-    # without weights far from w0: leave the constraint out (an identity row keeps the system regular).
-    size = np.abs(outside).sum(axis=1)
-    change = np.abs(budget - np.einsum("sa,sac->sc", outside, w0)).max(axis=1)
-    steer = (size > CONSTRAIN * cell[ctx.corners[:s_count]].sum(axis=1)) & (
-        change <= STEER_LIMIT * size * np.abs(w0).max(axis=(1, 2)))
-    unit = outside / np.maximum(size, 1e-300)[:, None]
-    system[steer, :3, 3] = system[steer, 3, :3] = unit[steer]
-    right[steer, 3] = budget[steer] / size[steer, None]
-    system[~steer, 3, 3] = 1.0
-    weights = np.linalg.solve(system, right)[:, :3]
-    # misfit after the fit: |y - X w|² = |y|² - 2 w·Xᵀy + wᵀ XᵀX w, summed over sources
-    after = before - 2.0 * np.einsum("sac,sac->c", weights, rhs) + np.einsum("sac,sab,sbc->c", weights, normal, weights)
-    denom = np.sqrt(np.maximum(scale, 1e-300))
-    return weights, {"energyConstrained": float(steer.mean()),
-                     "ringMisfitGlobal": (np.sqrt(before) / denom).tolist(),
-                     "ringMisfitBlended": (np.sqrt(np.maximum(after, 0.0)) / denom).tolist()}
-
-
-def _kernels(ctx: _Context, grid: _Grid, s_count: int, r: int, direct: np.ndarray, correct: bool) -> np.ndarray:
-    """(S, k², 3) gather kernels: T minus (when `correct`) the global and direct parts."""
-    dy, dx = _window(r)
     out = np.zeros((s_count, len(dy), 3))
+    direct = np.zeros((s_count, 3, 3))
+    totals = np.zeros((4, 3))
+    with ThreadPoolExecutor(THREADS) as pool:
+        for start, weights, receivers, offset, value, stats in pool.map(chunk, range(0, s_count, CHUNK)):
+            direct[start: start + len(weights)] = weights
+            out[receivers, offset] = value
+            totals += stats
 
-    def chunk(start: int):
+    def border_chunk(start: int):
         receivers, offset, texel = grid.pairs(np.arange(start, min(s_count, start + CHUNK)), dy, dx)
+        keep = texel >= s_count
+        receivers, offset, texel = receivers[keep], offset[keep], texel[keep]
         value = ctx.transport(receivers, texel)
         if correct:
             source = ctx.real_of[texel]
@@ -473,10 +432,72 @@ def _kernels(ctx: _Context, grid: _Grid, s_count: int, r: int, direct: np.ndarra
             value -= ratio * smooth
         return receivers, offset, value
 
-    with ThreadPoolExecutor(THREADS) as pool:
-        for receivers, offset, value in pool.map(chunk, range(0, s_count, CHUNK)):
-            out[receivers, offset] = value
-    return out
+    if len(ctx.x) > s_count:
+        with ThreadPoolExecutor(THREADS) as pool:
+            for receivers, offset, value in pool.map(border_chunk, range(0, s_count, CHUNK)):
+                out[receivers, offset] = value
+    misfit = {}
+    if blend == "optimised":
+        denom = np.sqrt(np.maximum(totals[2], 1e-300))
+        misfit = {"energyConstrained": float(totals[0, 0] / max(s_count, 1)),
+                  "ringMisfitGlobal": (np.sqrt(totals[1]) / denom).tolist(),
+                  "ringMisfitBlended": (np.sqrt(totals[3]) / denom).tolist()}
+    return out, direct, misfit
+
+
+def _fit_chunk(ctx: _Context, grid: _Grid, centres: np.ndarray, ring_dy, ring_dx, w0: np.ndarray, ridge: float,
+               excess: np.ndarray, hats: np.ndarray, local: np.ndarray, receivers: np.ndarray,
+               cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Blending weights of the sources `centres` (m,) and their misfit sums.
+
+    `excess` (T - global part), `hats` and `local` are the window pairs' of these sources.
+    Returns weights (m, 3, 3) and stats (4, 3): row 0 the count of sources constrained (then
+    zeros), per channel the ring's squared misfit of the global part alone (row 1), |T|² (row 2)
+    and the squared misfit after the fit (row 3).
+    """
+    m = len(centres)
+    start = centres[0]
+    sources, _, ring = grid.pairs(centres, ring_dy, ring_dx)
+    ring_local = sources - start
+    truth = ctx.transport(ring, sources)
+    target = truth - ctx.global_part(ring, sources)
+    design = ctx.shared(ring, sources)
+    normal = np.stack([np.bincount(ring_local, weights=design[:, a] * design[:, b], minlength=m)
+                       for a in range(3) for b in range(3)], axis=1).reshape(m, 3, 3)
+    rhs = np.stack([np.bincount(ring_local, weights=design[:, a] * target[:, c], minlength=m)
+                    for a in range(3) for c in range(3)], axis=1).reshape(m, 3, 3)
+    count = np.bincount(ring_local, minlength=m)
+    # energy inside the window: of T minus the global part, and of each corner's hat
+    weight = ctx.area[receivers, None]
+    inside = np.stack([np.bincount(local, weights=hats[:, a] * weight[:, 0], minlength=m) for a in range(3)], axis=1)
+    extra = np.stack([np.bincount(local, weights=excess[:, c] * weight[:, 0], minlength=m) for c in range(3)], axis=1)
+    corner_cells = cell[ctx.corners[centres]]
+    outside = corner_cells - inside
+    budget = np.einsum("sa,sac->sc", corner_cells, w0) - extra
+    # The pull towards w0 counts as `ridge` of a ring texel per ring texel: a ring the corners'
+    # hats barely reach (small design entries) cannot pull the weights far.
+    lam = ridge * count + 1e-300
+    system = np.zeros((m, 4, 4))
+    system[:, :3, :3] = normal + lam[:, None, None] * np.eye(3)
+    right = np.zeros((m, 4, 3))
+    right[:, :3] = rhs + lam[:, None, None] * w0
+    # Where the corners' hats barely reach past the window, the energy cannot be steered by w
+    # without weights far from w0: leave the constraint out (an identity row keeps the system regular).
+    size = np.abs(outside).sum(axis=1)
+    change = np.abs(budget - np.einsum("sa,sac->sc", outside, w0)).max(axis=1)
+    steer = (size > CONSTRAIN * corner_cells.sum(axis=1)) & (change <= STEER_LIMIT * size * np.abs(w0).max(axis=(1, 2)))
+    unit = outside / np.maximum(size, 1e-300)[:, None]
+    system[steer, :3, 3] = system[steer, 3, :3] = unit[steer]
+    right[steer, 3] = budget[steer] / size[steer, None]
+    system[~steer, 3, 3] = 1.0
+    weights = np.linalg.solve(system, right)[:, :3]
+    residual = target - np.einsum("pa,pac->pc", design, weights[ring_local])
+    stats = np.zeros((4, 3))
+    stats[0, 0] = steer.sum()
+    stats[1] = (target**2).sum(axis=0)
+    stats[2] = (truth**2).sum(axis=0)
+    stats[3] = (residual**2).sum(axis=0)
+    return weights, stats
 
 
 def _window(r: int) -> tuple[np.ndarray, np.ndarray]:
