@@ -7,7 +7,6 @@ each prim gets its own (equal) copy.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -50,17 +49,14 @@ def read_kernels_usd(path: str | os.PathLike) -> dict[str, tuple[KernelsData, np
     ``sss:extras`` has ``kernels``."""
     from pxr import Usd, UsdGeom
 
+    from .usd import technique_tables
+
     stage = Usd.Stage.Open(str(Path(path)))
     out = {}
     for prim in stage.Traverse():
-        attr = prim.GetAttribute("sss:extras")
-        if not prim.IsA(UsdGeom.Mesh) or not attr:
+        resolved = technique_tables(prim, "kernels")
+        if resolved is None:
             continue
-        tables = json.loads(attr.Get()).get("kernels")
-        if tables is None:
-            continue
-        resolved = {k: np.asarray(prim.GetAttribute(v["attribute"]).Get())
-                    if isinstance(v, dict) and "attribute" in v else v for k, v in tables.items()}
         primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(VERTEX_KEY)
         if not primvar:
             raise KernelsReadError(f"{path}: {prim.GetPath()} lacks primvars:{VERTEX_KEY}")

@@ -5,7 +5,6 @@ The inverse of what `pipeline.prt_layout` lays out; ``verify`` and the round-tri
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -51,17 +50,14 @@ def read_prt_usd(path: str | os.PathLike) -> dict[str, PrtData]:
     """Mesh prim path -> PrtData, for every UsdGeom.Mesh whose ``sss:extras`` has ``prt``."""
     from pxr import Usd, UsdGeom
 
+    from .usd import technique_tables
+
     stage = Usd.Stage.Open(str(Path(path)))
     out = {}
     for prim in stage.Traverse():
-        attr = prim.GetAttribute("sss:extras")
-        if not prim.IsA(UsdGeom.Mesh) or not attr:
+        resolved = technique_tables(prim, "prt")
+        if resolved is None:
             continue
-        tables = json.loads(attr.Get()).get("prt")
-        if tables is None:
-            continue
-        resolved = {k: np.asarray(prim.GetAttribute(v["attribute"]).Get()).reshape(v["shape"])
-                    if isinstance(v, dict) and "attribute" in v else v for k, v in tables.items()}
         api = UsdGeom.PrimvarsAPI(prim)
         per_vertex = {}
         for name in _attribute_names(resolved):

@@ -387,6 +387,19 @@ def _extras_json(extras: dict, root: Usd.Prim, where: str) -> str:
     return json.dumps(convert(extras, where), sort_keys=True, allow_nan=False)
 
 
+def technique_tables(prim: Usd.Prim, technique: str) -> dict | None:
+    """A Mesh prim's ``sss:extras[technique]`` with every ``{"attribute": name, "shape": ...}`` read
+    into its array; None when the prim has no such data."""
+    attr = prim.GetAttribute("sss:extras")
+    if not prim.IsA(UsdGeom.Mesh) or not attr:
+        return None
+    tables = json.loads(attr.Get()).get(technique)
+    if tables is None:
+        return None
+    return {k: np.asarray(prim.GetAttribute(v["attribute"]).Get()).reshape(v["shape"])
+            if isinstance(v, dict) and "attribute" in v else v for k, v in tables.items()}
+
+
 def _table(root: Usd.Prim, name: str, array: np.ndarray, where: str) -> Usd.Attribute:
     """A table as a flat float[] (float32), uchar[] (uint8), int[] (int8, int16) or uint[] attribute;
     customData holds its shape."""
