@@ -132,7 +132,7 @@ def _unfold(layout: AtlasSurface, surface: Surface, reach: int) -> tuple[np.ndar
         if not len(fresh):
             break
         frontier = {name: value[fresh] for name, value in frontier.items()}
-        visited = np.union1d(visited, key[fresh])
+        visited = np.sort(np.concatenate([visited, key[fresh]]), kind="stable")  # fresh keys are new and distinct
         g = frontier["face"]
         corner = faces[g]
         is_a = corner == frontier["a"][:, None]
