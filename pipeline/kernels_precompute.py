@@ -15,10 +15,15 @@ Discretisation (float64 throughout, lengths in mm):
 - Global response of a unit irradiance at real texel s, at a surface point y in triangle (β):
   ``g(y, s) = Σ_β ψ_β(y) [Σ_α dual_α(s) F'_αβ + [β ∈ s's corners] w_β(s)]`` with F' = F without
   its diagonal and w the blending weights.
-- Blending (``blend="optimised"``, `_blend`): w(s) per channel by least squares so that g matches T on the
-  ring of texels at chessboard distance r + 1 around s (the boundary of the (k + 2)² kernel, where
-  the k² kernel no longer reaches), ridge-regularised towards w0 = dual(s) F_αα (the dropped
-  diagonal) for weights the ring barely constrains. Then each kernel entry becomes
+- Global mesh: F, the distribution and the blending live on the surface's vertices, or on a
+  simplified copy when the surface has more than ``global_vertices`` (texel points located on it,
+  `surface_locate`; each surface vertex then blends three of its vertices).
+- Blending (``blend="optimised"``, `_blend`): w(s) per channel by least squares so that g matches T
+  on the ring of texels at chessboard distance r + 1 around s (the boundary of the (k + 2)² kernel,
+  where the k² kernel no longer reaches), ridge-regularised towards w0 = dual(s) F_αα (the dropped
+  diagonal) for weights the ring barely constrains, and constrained so that g sends beyond the
+  window what T sends there (exact energy; without it the hats carry a texel's light too far and
+  the hand came out 14 % too bright). Then each kernel entry becomes
   ``T(r, t) - g(r, t)``: inside the window the sum is the true response, outside it is g, and the
   two meet at the ring. A border texel's g is that of the covered texel at the same surface point,
   scaled by the ratio of their areas.
