@@ -74,7 +74,7 @@ class Throughput:
 
 
 def throughput_values(field: NearField, table: ProfileTable, threshold: float, sources: np.ndarray,
-                      receivers: np.ndarray, diagonal: bool = False) -> np.ndarray:
+                      receivers: np.ndarray, diagonal: bool = False, d2: np.ndarray | None = None) -> np.ndarray:
     """F for given pairs, with the same rules as `throughput_matrix`.
 
     Parameters
@@ -87,20 +87,23 @@ def throughput_values(field: NearField, table: ProfileTable, threshold: float, s
     sources, receivers : (m,) int64
     diagonal : bool
         Keep i == j entries (the cell's own integral); else they are 0.
+    d2 : (m,) float64, optional
+        The pairs' squared distances when the caller has them (a pair search does).
 
     Returns
     -------
     (m, 3) float64
     """
-    delta = field.positions[sources] - field.positions[receivers]
-    d2 = np.einsum("ij,ij->i", delta, delta)
+    if d2 is None:
+        delta = field.positions[sources] - field.positions[receivers]
+        d2 = np.einsum("ij,ij->i", delta, delta)
     radius = np.sqrt(field.area / np.pi)
     close = np.flatnonzero(d2 < (CLOSE * (radius[sources] + radius[receivers])) ** 2)
     value = table(d2)
     value *= field.area[sources, None]
     if len(close):
         value[close] = field.weights(receivers[close], sources[close])
-    keep = value.max(axis=1) >= threshold
+    keep = np.maximum(np.maximum(value[:, 0], value[:, 1]), value[:, 2]) >= threshold
     if not diagonal:
         keep &= sources != receivers
     value *= keep[:, None]  # cheaper than a masked assignment of the dropped rows
@@ -145,9 +148,9 @@ def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.n
 
     def rows(start: int):
         stop = min(n, start + CHUNK)
-        receiver, source = _candidates(x[start:stop], trees)
-        value = throughput_values(field, table, threshold, source, receiver + start, diagonal)
-        keep = np.flatnonzero(value.max(axis=1) > 0)
+        receiver, source, d2 = _candidates(x[start:stop], trees)
+        value = throughput_values(field, table, threshold, source, receiver + start, diagonal, d2)
+        keep = np.flatnonzero(value[:, 0] + value[:, 1] + value[:, 2] > 0)
         # scipy's COO -> CSR conversion sorts by row and column in C; the data carries the order
         order = sp.csr_matrix((keep.astype(np.float64) + 1.0, (receiver[keep], source[keep])), shape=(stop - start, n))
         order.sort_indices()
@@ -171,14 +174,16 @@ def _cell_classes(cell: np.ndarray) -> np.ndarray:
     return np.unique(np.percentile(cell, [50, 90, 99, 100])) if len(cell) else np.zeros(1)
 
 
-def _candidates(points: np.ndarray, trees: list) -> tuple[np.ndarray, np.ndarray]:
-    """(receiver in `points`, source vertex) pairs within each source group's reach (i == j included)."""
-    receivers, sources = [], []
+def _candidates(points: np.ndarray, trees: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(receiver in `points`, source vertex, squared distance) of the pairs within each source
+    group's reach (i == j included)."""
+    receivers, sources, d2 = [], [], []
     for members, tree, r in trees:
         pairs = cKDTree(points).sparse_distance_matrix(tree, r, output_type="ndarray")
         receivers.append(pairs["i"].astype(np.int64))
         sources.append(members[pairs["j"]])
-    return np.concatenate(receivers), np.concatenate(sources)
+        d2.append(np.square(pairs["v"]))
+    return np.concatenate(receivers), np.concatenate(sources), np.concatenate(d2)
 
 
 def _estimated_entries(x: np.ndarray, trees: list, field: NearField, table: ProfileTable, threshold: float,
@@ -186,8 +191,8 @@ def _estimated_entries(x: np.ndarray, trees: list, field: NearField, table: Prof
     """F's entry count predicted from `SAMPLE` receivers spread over the mesh."""
     n = len(x)
     picked = np.unique(np.linspace(0, n - 1, min(n, SAMPLE)).astype(np.int64))
-    receiver, source = _candidates(x[picked], trees)
-    value = throughput_values(field, table, threshold, source, picked[receiver], diagonal)
+    receiver, source, d2 = _candidates(x[picked], trees)
+    value = throughput_values(field, table, threshold, source, picked[receiver], diagonal, d2)
     return float((value.max(axis=1) > 0).sum()) * n / max(len(picked), 1)
 
 
