@@ -171,10 +171,7 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     real_face = layout.part_face_offset[texels.part] + texels.face
     pixels = texels.rows * width + texels.cols
     chart = layout.face_chart[real_face]
-    if options.seams == "unfold":
-        border = border_texels(layout, surface, pixels, chart, r + 1)
-    else:
-        border = border_texels(layout, surface, pixels, chart, 0)
+    border = border_texels(layout, surface, pixels, chart, r + 1 if options.seams == "unfold" else 0)
     seconds["texels"] = time.perf_counter() - t
 
     t = time.perf_counter()

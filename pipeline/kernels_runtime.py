@@ -16,7 +16,7 @@ Layouts. Atlas textures hold atlas row r in texture row r: the atlas pass sends 
 framebuffer row 0, which is texture row 0, and ``texture(map, uv)`` reads glTF UVs as they are, so
 nothing is flipped. Per-vertex textures hold welded vertex j at texel (j % w, j / w), w =
 min(table width, n). Long tables (kernel weights, CSR entries) are wrapped the same way by
-`prt_runtime._table_texture`; the shaders never divide: a texel's kernel, a CSR row and an entry's
+`prt_runtime.table_texture`; the shaders never divide: a texel's kernel, a CSR row and an entry's
 source are given as texels, computed here.
 """
 
@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from .kernels_data import KernelsData
-from .prt_runtime import _table_texture
+from .prt_runtime import table_texture
 
 #: How far a shadow lookup moves off the surface, in shadow-map texels (along n and towards the
 #: light): enough against self-shadowing of lit surfaces at 1-texel depth quantisation.
@@ -94,11 +94,8 @@ class KernelsPasses:
         w, h, n = data.width, data.height, data.vertex_count
 
         def table(name, rows, dtype, width=table_width):
-            rows_needed = -(-max(len(rows), 1) // width)
-            if rows_needed > self._limit:
-                raise ValueError(f"kernels runtime: {name} ({len(rows)} entries) needs {rows_needed} rows of "
-                                 f"{width} texels, over GL_MAX_TEXTURE_SIZE {self._limit}")
-            return self._keep(_table_texture(ctx, np.ascontiguousarray(rows), dtype, width, self._limit))
+            return self._keep(table_texture(ctx, np.ascontiguousarray(rows), dtype, width, self._limit,
+                                            f"kernels runtime: {name}"))
 
         # Step 2: a texel's k² weights are consecutive; the W x H map points at the first.
         kernels = table("kernels", data.kernels.reshape(-1, 3).astype(np.float32), "f4")

@@ -30,7 +30,7 @@ from .materials import Material
 from .options import BAKE_DEFAULTS
 from .reference import Light, reference_scattering
 from .tradeoff import image_exposure, lit_images, worst_rmse, write_outputs
-from .verify import PLAIN_ALBEDO, _merged
+from .verify import PLAIN_ALBEDO, merged_primitive
 
 RESOLUTIONS = (256, 512, 1024)
 SIZES = (5, 7, 9)
@@ -99,7 +99,7 @@ def kernels_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mate
     renderer = Renderer((size, size))
     camera = fit_camera(surface.positions)
     # The reference is drawn on the file's own render vertices: the atlas only copies them.
-    whole = _merged(prims)
+    whole = merged_primitive(prims)
     welded = np.concatenate(surface.weld)
     base = dict(positions=whole.positions, normals=whole.normals, faces=whole.faces, model=np.eye(4),
                 eta=material.eta)
@@ -122,7 +122,7 @@ def kernels_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mate
     def draw_item(atlas, data) -> dict:
         cut = [replace(p, positions=p.positions[part.vmapping], normals=p.normals[part.vmapping], faces=part.faces,
                        uvs=(part.uvs,), tangents=None, colors=None) for p, part in zip(prims, atlas.parts)]
-        merged = _merged(cut)
+        merged = merged_primitive(cut)
         return dict(positions=merged.positions, normals=merged.normals, faces=merged.faces, model=np.eye(4),
                     eta=material.eta, kernels=data, uvs=merged.uvs[-1],
                     vertex_ids=np.concatenate([w[part.vmapping] for w, part in zip(surface.weld, atlas.parts)]))

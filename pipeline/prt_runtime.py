@@ -55,7 +55,7 @@ def upload(ctx, program, prt: PrtData, width: int = TABLE_WIDTH) -> list:
     textures = []
     unit = 0
     for name, (rows, dtype) in tables.items():
-        tex = _table_texture(ctx, rows, dtype, width if name != "u_prt_lut" else 256, limit)
+        tex = table_texture(ctx, rows, dtype, width if name != "u_prt_lut" else 256, limit)
         textures.append(tex)
         if name in program:
             tex.use(unit)
@@ -106,8 +106,9 @@ def _pad4(rows: np.ndarray, dtype) -> np.ndarray:
     return out
 
 
-def _table_texture(ctx, rows: np.ndarray, dtype: str, width: int, limit: int):
-    """Rows (m, components) laid out row-major in a (width, ceil(m / width)) texture."""
+def table_texture(ctx, rows: np.ndarray, dtype: str, width: int, limit: int, what: str = "prt runtime: a table"):
+    """Rows (m, components) laid out row-major in a (width, ceil(m / width)) texture; `what`
+    names the table in the error when it would exceed GL_MAX_TEXTURE_SIZE `limit`."""
     import moderngl
 
     if len(rows) == 0:
@@ -116,7 +117,7 @@ def _table_texture(ctx, rows: np.ndarray, dtype: str, width: int, limit: int):
     w = min(width, m)
     h = -(-m // w)
     if w > limit or h > limit:
-        raise ValueError(f"prt runtime: a {m}-entry table needs {w} x {h} texels, over GL_MAX_TEXTURE_SIZE {limit}")
+        raise ValueError(f"{what} ({m} entries) needs {w} x {h} texels, over GL_MAX_TEXTURE_SIZE {limit}")
     data = np.zeros((w * h, components), dtype=rows.dtype)
     data[:m] = rows
     tex = ctx.texture((w, h), components, data.tobytes(), dtype=dtype)

@@ -137,8 +137,9 @@ def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.n
     table = ProfileTable.build(params, radius)
     # Sources grouped by how far they reach (their cells differ): each group is searched only
     # as far as its own largest cell reaches, not as far as the mesh's largest.
-    reach = np.array([search_radius(float(c), params, threshold) for c in _cell_classes(cell)])
-    group = np.searchsorted(_cell_classes(cell), cell)
+    classes = _cell_classes(cell)
+    reach = np.array([search_radius(float(c), params, threshold) for c in classes])
+    group = np.searchsorted(classes, cell)
     groups = [(np.flatnonzero(group == g), reach[g]) for g in range(len(reach)) if np.any(group == g)]
     trees = [(members, cKDTree(x[members]), r) for members, r in groups]
     estimate = _estimated_entries(x, trees, field, table, threshold, diagonal)

@@ -106,7 +106,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     t_ref = time.perf_counter()
     for mi, unit, world in instances:
         prims = [scene.meshes[mi].primitives[pi] for pi in unit]
-        prim = _merged(prims)
+        prim = merged_primitive(prims)
         material = _material(gltf, prims[0].material, path)
         mm = float(gltf.meshes[mi].extras["sssbake"]["scaleMm"])
         normals = prim.normals
@@ -189,7 +189,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     }
 
 
-def _merged(prims: list) -> Primitive:
+def merged_primitive(prims: list) -> Primitive:
     """One primitive of all of `prims` (faces re-indexed), with normals where they lacked them."""
     normals = [p.normals if p.normals is not None else area_weighted_normals(p.positions, p.faces) for p in prims]
     offsets = np.cumsum([0] + [len(p.positions) for p in prims])
