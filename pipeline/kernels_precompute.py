@@ -46,6 +46,7 @@ from .atlas_surface import atlas_surface
 from .clean import Surface, area_weighted_normals, triangle_areas, vertex_areas
 from .dipole import DipoleParams, disc_integral
 from .kernels_border import border_texels
+from .integer_keys import argsort_keys
 from .kernels_data import KernelsData
 from .materials import Material
 from .profile_table import ProfileTable
@@ -236,7 +237,7 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
 
     data = KernelsData(
         width=width, height=height, kernel_size=k, vertex_count=n, texels=pixels,
-        kernels=kernels.astype(np.float32), texel_vertices=corners[:s_count], texel_dual=dual.astype(np.float32),
+        kernels=kernels, texel_vertices=corners[:s_count], texel_dual=dual.astype(np.float32),
         texel_direct=direct.astype(np.float32), f_indptr=throughput.indptr, f_indices=throughput.indices,
         f_values=throughput.values, border_texels=border.pixels, border_vertices=surface.faces[border.faces],
         border_barycentric=border.barycentric.astype(np.float32), surface_vertex_count=n_s,
@@ -354,13 +355,19 @@ class _Context:
 
     def entries(self, sources: np.ndarray, receivers: np.ndarray) -> np.ndarray:
         """(m, 3) the stored F entries (0 where F has none), found in its sorted (row, column) keys."""
+        out = np.zeros((len(sources), 3))
+        if not len(self.f_keys) or not len(sources):
+            return out
         key = receivers * self.vertex_count + sources
-        order = np.argsort(key)  # sorted needles walk F's keys in order: far fewer cache misses
-        at = np.empty(len(key), dtype=np.int64)
-        at[order] = np.minimum(np.searchsorted(self.f_keys, key[order]), max(len(self.f_keys) - 1, 0))
-        found = self.f_keys[at] == key if len(self.f_keys) else np.zeros(len(key), dtype=bool)
-        out = np.zeros((len(key), 3))
-        out[found] = self.throughput.values[at[found]]
+        # Neighbouring face pairs share vertex pairs: each distinct key is searched once, and
+        # sorted needles walk F's keys in order (far fewer cache misses).
+        order = argsort_keys(key, self.vertex_count**2)
+        ordered = key[order]
+        new = np.r_[True, ordered[1:] != ordered[:-1]]
+        distinct = ordered[new]
+        at = np.minimum(np.searchsorted(self.f_keys, distinct), len(self.f_keys) - 1)
+        value = np.where((self.f_keys[at] == distinct)[:, None], self.throughput.values[at], 0.0)
+        out[order] = value[np.cumsum(new) - 1]
         return out
 
     def shared(self, receiver: np.ndarray, source: np.ndarray) -> np.ndarray:
@@ -369,9 +376,8 @@ class _Context:
         cs, cr = self.corners[source], self.corners[receiver]
         weight = self.bary[receiver]
         out = np.zeros((len(source), 3))
-        for a in range(3):
-            for b in range(3):
-                out[:, a] += np.where(cr[:, b] == cs[:, a], weight[:, b], 0.0)
+        for b in range(3):
+            out += (cs == cr[:, b, None]) * weight[:, b, None]
         return out
 
 
@@ -412,16 +418,16 @@ def _blend(ctx: _Context, grid: _Grid, s_count: int, r: int, w0: np.ndarray, ble
         if correct:
             value = truth - smooth - np.einsum("pa,pac->pc", hats, weights[local])
         real = receivers < s_count
-        return start, weights, receivers[real], mirror[offset[real]], value[real], stats
+        # each (receiver, offset) has one source, so chunks write disjoint entries
+        flat[receivers[real] * len(dy) + mirror[offset[real]]] = value[real]
+        direct[start:stop] = weights
+        return stats
 
-    out = np.zeros((s_count, len(dy), 3))
+    out = np.zeros((s_count, len(dy), 3), dtype=np.float32)  # as stored
+    flat = out.reshape(-1, 3)
     direct = np.zeros((s_count, 3, 3))
-    totals = np.zeros((4, 3))
     with ThreadPoolExecutor(THREADS) as pool:
-        for start, weights, receivers, offset, value, stats in pool.map(chunk, range(0, s_count, CHUNK)):
-            direct[start: start + len(weights)] = weights
-            out[receivers, offset] = value
-            totals += stats
+        totals = sum(pool.map(chunk, range(0, s_count, CHUNK)), np.zeros((4, 3)))
 
     def border_chunk(start: int):
         receivers, offset, texel = grid.pairs(np.arange(start, min(s_count, start + CHUNK)), dy, dx)
@@ -434,12 +440,11 @@ def _blend(ctx: _Context, grid: _Grid, s_count: int, r: int, w0: np.ndarray, ble
             smooth = ctx.global_part(receivers, source)
             smooth += np.einsum("pa,pac->pc", ctx.shared(receivers, source), direct[source])
             value -= ratio * smooth
-        return receivers, offset, value
+        flat[receivers * len(dy) + offset] = value  # the chunk's own receivers
 
     if len(ctx.x) > s_count:
         with ThreadPoolExecutor(THREADS) as pool:
-            for receivers, offset, value in pool.map(border_chunk, range(0, s_count, CHUNK)):
-                out[receivers, offset] = value
+            list(pool.map(border_chunk, range(0, s_count, CHUNK)))
     misfit = {}
     if blend == "optimised":
         denom = np.sqrt(np.maximum(totals[2], 1e-300))
@@ -498,9 +503,9 @@ def _fit_chunk(ctx: _Context, grid: _Grid, centres: np.ndarray, ring_dy, ring_dx
     residual = target - np.einsum("pa,pac->pc", design, weights[ring_local])
     stats = np.zeros((4, 3))
     stats[0, 0] = steer.sum()
-    stats[1] = (target**2).sum(axis=0)
-    stats[2] = (truth**2).sum(axis=0)
-    stats[3] = (residual**2).sum(axis=0)
+    stats[1] = np.einsum("pc,pc->c", target, target)
+    stats[2] = np.einsum("pc,pc->c", truth, truth)
+    stats[3] = np.einsum("pc,pc->c", residual, residual)
     return weights, stats
 
 

@@ -19,10 +19,10 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from .dipole import DipoleParams, diffuse_reflectance_profile, total_diffuse_reflectance
+from .integer_keys import argsort_keys
 from .near_field import NearField
 from .profile_table import ProfileTable
 
@@ -150,14 +150,13 @@ def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.n
     def rows(start: int):
         stop = min(n, start + CHUNK)
         receiver, source, d2 = _candidates(x[start:stop], trees)
-        value = throughput_values(field, table, threshold, source, receiver + start, diagonal, d2)
-        keep = np.flatnonzero(value[:, 0] + value[:, 1] + value[:, 2] > 0)
-        # scipy's COO -> CSR conversion sorts by row and column in C; the data carries the order
-        order = sp.csr_matrix((keep.astype(np.float64) + 1.0, (receiver[keep], source[keep])), shape=(stop - start, n))
-        order.sort_indices()
-        entries = order.data.astype(np.int64) - 1
-        return (np.diff(order.indptr), order.indices.astype(np.int64), value[entries].astype(np.float32),
-                (value * cell[receiver + start, None]).sum(axis=0))
+        # pairs in CSR order before their values, so that only the pairs' small arrays are permuted
+        order = argsort_keys(receiver * n + source, (stop - start) * n)
+        receiver, source, d2 = receiver[order] + start, source[order], d2[order]
+        value = throughput_values(field, table, threshold, source, receiver, diagonal, d2)
+        keep = value[:, 0] + value[:, 1] + value[:, 2] > 0
+        return (np.bincount(receiver[keep] - start, minlength=stop - start), source[keep],
+                value[keep].astype(np.float32), cell[receiver] @ value)
 
     with ThreadPoolExecutor(THREADS) as pool:
         parts = list(pool.map(rows, range(0, n, CHUNK)))
