@@ -34,12 +34,15 @@ from .prt_compress import PrtCompressOptions
 from .prt_layout import prt_tables, prt_vertex_attributes
 from .prt_stage import bake_prt
 from .scene import Image, Mesh, Scene, SourceMaterial, Texture, TextureRef
+from .spectral_layout import normals_variant, spectral_vertex_attributes
+from .spectral_stage import bake_spectral
 from .stages import StageRunner
 from .thickness import bake_thickness
 from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
-STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3}
+STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
+                  "spectral": 1}
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
 
@@ -126,6 +129,13 @@ def _split_shared_materials(scene: Scene, translucent: set[int]) -> tuple[Scene,
     return replace(scene, meshes=tuple(meshes), materials=tuple(materials)), origin
 
 
+def _one_material(technique: str, mesh: Mesh, mats: list[int], scene: Scene, warnings: list[str]) -> None:
+    """Warn that `technique` bakes a mesh of several scattering materials with the first one's."""
+    if len(mats) > 1:
+        warnings.append(f"mesh {mesh.name!r}: {technique} needs one scattering material per mesh, it has "
+                        f"{len(mats)}; baked with {scene.materials[mats[0]].name!r}'s")
+
+
 def _png_gray(values: np.ndarray) -> bytes:
     """8-bit greyscale PNG of `values` in [0, 1] (H, W): G reads the grey level in every sampler."""
     img = PILImage.fromarray(np.round(np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8), mode="L")
@@ -137,7 +147,8 @@ def _png_gray(values: np.ndarray) -> bytes:
 def bake_asset(
     path: Path, options: BakeOptions, out_base: Path, cache: StageCache, *, trace_memory: bool = False
 ) -> BakeResult:
-    """Bake the asset at `path` into ``out_base.glb``, ``.usdc`` and ``.report.json``.
+    """Bake the asset at `path` into ``out_base.glb``, ``.usdc`` and ``.report.json`` (and
+    ``.sss_normals.glb`` with `BakeOptions.spectral_variant`).
 
     `trace_memory` records each stage's peak traced allocation (slower; for benchmarks).
 
@@ -149,6 +160,8 @@ def bake_asset(
     t_start = time.perf_counter()
     path = Path(path)
     outputs = (out_base.with_suffix(".glb"), out_base.with_suffix(".usdc"), out_base.with_suffix(".report.json"))
+    if options.spectral_variant:
+        outputs += (out_base.with_suffix(".sss_normals.glb"),)
     digest = file_digest(path)
     job_key = stage_key(digest, "bake", 1, {"options": options.to_json(), "stages": STAGE_VERSIONS, "sssbake": version("sssbake")})
     if all(p.exists() for p in outputs):
@@ -175,9 +188,12 @@ def bake_asset(
         runner.skip("prt", "not requested (--techniques prt)")
     if "kernels" not in options.techniques:
         runner.skip("kernels", "not requested (--techniques kernels)")
+    if "spectral" not in options.techniques:
+        runner.skip("spectral", "not requested (--techniques spectral)")
     mesh_extras: dict[int, dict] = {}
     prt_reports: dict[str, dict] = {}
     kernels_reports: dict[str, dict] = {}
+    spectral_reports: dict[str, dict] = {}
 
     meshes = list(scene.meshes)
     images, textures = list(scene.images), list(scene.textures)
@@ -225,9 +241,7 @@ def bake_asset(
         )
         prt = None
         if "prt" in options.techniques:
-            if len(mats) > 1:
-                warnings.append(f"mesh {mesh.name!r}: prt needs one scattering material per mesh, it has "
-                                f"{len(mats)}; baked with {scene.materials[mats[0]].name!r}'s")
+            _one_material("prt", mesh, mats, scene, warnings)
             compress = PrtCompressOptions(options.prt_mode, options.prt_reference_fraction, options.prt_sh_order,
                                           options.prt_weights, tables=options.prt_tables,
                                           refine=options.prt_refine, weight_bits=options.prt_weight_bits,
@@ -246,9 +260,7 @@ def bake_asset(
             prt_reports[mesh.name] = baked.report
         kernels = None
         if "kernels" in options.techniques:
-            if len(mats) > 1:
-                warnings.append(f"mesh {mesh.name!r}: kernels needs one scattering material per mesh, it has "
-                                f"{len(mats)}; baked with {scene.materials[mats[0]].name!r}'s")
+            _one_material("kernels", mesh, mats, scene, warnings)
             if options.atlas_padding < (options.kernels_size + 1) // 2:
                 warnings.append(f"mesh {mesh.name!r}: atlas_padding {options.atlas_padding} is below the "
                                 f"{(options.kernels_size + 1) // 2} texels a {options.kernels_size}-texel kernel "
@@ -263,6 +275,19 @@ def bake_asset(
             kernels = baked_k.kernels
             mesh_extras.setdefault(mi, {})["kernels"] = kernels_tables(kernels, options.kernels_bits)
             kernels_reports[mesh.name] = baked_k.report
+        spectral = None
+        if "spectral" in options.techniques:
+            _one_material("spectral", mesh, mats, scene, warnings)
+            # Keyed on the mesh, not the atlas: the normals live on the welded surface's vertices.
+            spectral, _ = runner.run(
+                "spectral", STAGE_VERSIONS["spectral"], mesh_key,
+                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "options": options.spectral().__dict__,
+                 "basis": options.spectral_basis},
+                bake_spectral, surface, mesh_mm, material_of[mats[0]], options.spectral(), options.spectral_basis,
+            )
+            if spectral.tables is not None:
+                mesh_extras.setdefault(mi, {})["spectral"] = spectral.tables
+            spectral_reports[mesh.name] = spectral.report
         tmax = max(float(tmap.image.max()), float(thick.thickness.max()), 1e-30)
         images.append(Image(f"{mesh.name}_thickness", "image/png", _png_gray(tmap.image / tmax)))
         textures.append(Texture(len(images) - 1, LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE, CLAMP_TO_EDGE))
@@ -287,6 +312,9 @@ def bake_asset(
                     attributes[(mi, pi)] += prt_vertex_attributes(prt, surface.weld[pi][vm])
                 if kernels is not None:
                     attributes[(mi, pi)] += kernels_vertex_attributes(kernels, surface.weld[pi][vm])
+                if spectral is not None:
+                    attributes[(mi, pi)] += spectral_vertex_attributes(spectral.normals, surface.weld[pi][vm],
+                                                                       spectral.tables is not None)
         meshes[mi] = Mesh(mesh.name, tuple(prims))
         ref = TextureRef(len(textures) - 1, uv_set)
         for m in mats:
@@ -303,12 +331,17 @@ def bake_asset(
     asset = BakedAsset(baked_scene, attributes, scattering, scale_mm, extras, mesh_extras)
     written: list[Path] = []
     try:
+        summaries = {}
         with runner.timed("export_gltf"):
-            glb_summary = write_glb(asset, outputs[0])
+            summaries["glb"] = write_glb(asset, outputs[0])
         written.append(outputs[0])
         with runner.timed("export_usd"):
-            usd_summary = write_usdc(asset, outputs[1])
+            summaries["usdc"] = write_usdc(asset, outputs[1])
         written.append(outputs[1])
+        if options.spectral_variant:
+            with runner.timed("export_sss_normals"):
+                summaries["sss_normals_glb"] = write_glb(normals_variant(asset), outputs[3])
+            written.append(outputs[3])
         validation = _validate(runner, outputs, options, warnings)
         report = {
             "asset": str(path),
@@ -331,8 +364,8 @@ def bake_asset(
             "atlas": atlases,
             "prt": prt_reports,
             "kernels": kernels_reports,
-            "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"}
-                      for fmt, summary in (("glb", glb_summary), ("usdc", usd_summary))},
+            "spectral": spectral_reports,
+            "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"} for fmt, summary in summaries.items()},
             "validation": validation,
             "stages": runner.to_json(),
             "seconds": round(time.perf_counter() - t_start, 4),
@@ -351,15 +384,17 @@ def _validate(runner: StageRunner, outputs, options: BakeOptions, warnings: list
     if not options.validate:
         runner.skip("validate", "turned off (--no-validate)")
         return {}
-    from ..exporters.gltf_validator import ValidatorUnavailable, validate_glb
+    from ..exporters.gltf_validator import ValidatorUnavailable, validate_many
     from ..exporters.usd_validator import validate_usd
 
     out = {}
     with runner.timed("validate"):
+        # outputs[3], when written, is the normals variant; one validator run for both files
+        glbs = {"gltf": outputs[0], **({"gltf_sss_normals": outputs[3]} if len(outputs) > 3 else {})}
         try:
-            g = validate_glb(outputs[0])
-            out["gltf"] = {"errors": g.num_errors, "warnings": g.num_warnings, "infos": g.num_infos,
-                           "messages": [m.to_json() for m in g.messages if m.severity in ("Error", "Warning")]}
+            for name, g in zip(glbs, validate_many(list(glbs.values()))):
+                out[name] = {"errors": g.num_errors, "warnings": g.num_warnings, "infos": g.num_infos,
+                             "messages": [m.to_json() for m in g.messages if m.severity in ("Error", "Warning")]}
         except ValidatorUnavailable as e:
             warnings.append(f"glTF validation skipped: {e}")
         u = validate_usd(outputs[1])

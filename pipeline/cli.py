@@ -37,7 +37,8 @@ def _bake(args) -> int:
                  "prt_sh_order", "prt_weights", "prt_tables", "prt_refine",
                  "prt_weight_bits", "prt_byte_budget", "prt_reference_floor", "prt_detail_order",
                  "kernels_size", "kernels_threshold", "kernels_blend", "kernels_seams", "kernels_bits",
-                 "kernels_global_vertices"):
+                 "kernels_global_vertices", "spectral_eigenpairs", "spectral_width_mm", "spectral_alpha",
+                 "spectral_radius_mm", "spectral_variant", "spectral_basis"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -97,7 +98,8 @@ def _verify(args) -> int:
               f"RMSE image {result['rmse_image']:.4g}, object {result['rmse_object']:.4g} "
               f"(plain Lambert, best-fit scaled: {result['rmse_object_lambert']:.4g}); "
               f"frame {result['frame_ms_sss']:.2f} ms vs plain {result['frame_ms_plain']:.2f} ms; "
-              f"images in {result['pngs']['comparison']} (reference | {result['technique']} | Lambert)")
+              f"images in {result['pngs']['comparison']} (reference | {result['technique']} | Lambert"
+              f"{' | naive' if 'rmse_object_naive' in result else ''})")
     return 0
 
 
@@ -122,6 +124,10 @@ def _tradeoff(args) -> int:
             from .tradeoff import prt_tradeoff
 
             result = prt_tradeoff(path, scale, material, out, k=args.k, lights=args.lights, size=args.size)
+        elif args.technique == "spectral":
+            from .spectral_tradeoff import spectral_tradeoff
+
+            result = spectral_tradeoff(path, scale, material, out, lights=args.lights, size=args.size)
         else:
             from .kernels_tradeoff import kernels_tradeoff
 
@@ -138,6 +144,9 @@ def _tradeoff(args) -> int:
             if args.technique == "prt":
                 knobs = (f"{r['mode']:>8} K={r['k']:<4} n={r['sh_order']} refs={r['reference_fraction']:<7g} "
                          f"{r['weights']:<13}")
+            elif args.technique == "spectral":
+                knobs = (f"{r['normals']:>8} m={r['eigenpairs']:<4} width x{r['width_factor']:<5g} "
+                         f"alpha={r['alpha']:<4g}")
             else:
                 knobs = (f"atlas={r['atlas_resolution']:<5} k={r['kernel_size']:<2} threshold={r['threshold']:<6g} "
                          f"{r['blend']:<9} seams={r['seams']:<6}")
@@ -204,7 +213,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--config", help="TOML batch config (defaults, per-file rules, material rules)")
     b.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
     b.add_argument("--atlas-resolution", type=int, help=f"atlas texels per side (default {BAKE_DEFAULTS.atlas_resolution})")
-    b.add_argument("--techniques", help="comma-separated techniques to bake besides the fallback: prt, kernels")
+    b.add_argument("--techniques", help="comma-separated techniques to bake besides the fallback: prt, kernels, "
+                                       "spectral")
     b.add_argument("--prt-directions", type=int, help=f"prt: light directions K (default {BAKE_DEFAULTS.prt_directions})")
     b.add_argument("--prt-energy-dropped", type=float,
                    help=f"prt: fraction of R_d the gather radius may drop (default {BAKE_DEFAULTS.prt_energy_dropped})")
@@ -245,6 +255,22 @@ def build_parser() -> argparse.ArgumentParser:
                         f"about this many, 0 for never (default {BAKE_DEFAULTS.kernels_global_vertices})")
     b.add_argument("--kernels-bits", type=int, choices=KERNEL_BITS,
                    help=f"kernels: bits per stored kernel weight (default {BAKE_DEFAULTS.kernels_bits})")
+    b.add_argument("--spectral-eigenpairs", type=int,
+                   help=f"spectral: harmonics the normals are filtered in (default "
+                        f"{BAKE_DEFAULTS.spectral_eigenpairs})")
+    b.add_argument("--spectral-width-mm", type=float,
+                   help="spectral: the filter's spatial standard deviation (default: from the material)")
+    b.add_argument("--spectral-alpha", type=float,
+                   help=f"spectral: naive normals' weight of a vertex's own normal (default "
+                        f"{BAKE_DEFAULTS.spectral_alpha})")
+    b.add_argument("--spectral-radius-mm", type=float,
+                   help="spectral: naive normals' neighbourhood radius (default: from the material)")
+    # store_true with default None: an absent flag leaves the config's value alone
+    b.add_argument("--spectral-variant", action="store_true", default=None,
+                   help="spectral: also write STEM.sss_normals.glb, its NORMAL the spectral normal (for stock viewers)")
+    b.add_argument("--spectral-basis", action="store_true", default=None,
+                   help="spectral: also export the spectrum (coefficients, eigenvalues, residual, basis) to filter "
+                        "again at runtime")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")
@@ -258,7 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("verify", help="render an export with the shipped GLSL and the offline reference; image RMSE")
     v.add_argument("file", help="a .glb written by sssbake bake")
-    v.add_argument("--technique", default="prt", choices=["prt", "kernels"])
+    v.add_argument("--technique", default="prt", choices=["prt", "kernels", "spectral"])
     v.add_argument("--light-dir", help="x,y,z world direction towards a directional light (default 0.4,0.8,0.45)")
     v.add_argument("--light-pos", help="x,y,z world position of a point light instead (unit irradiance at the "
                                        "objects' centre)")
@@ -276,7 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     t = sub.add_parser("tradeoff", help="sweep a technique's knobs: image RMSE vs bytes per vertex and seconds")
     t.add_argument("input", help="a mesh file (the largest mesh is used)")
-    t.add_argument("--technique", default="prt", choices=["prt", "kernels"])
+    t.add_argument("--technique", default="prt", choices=["prt", "kernels", "spectral"])
     t.add_argument("--material", default=BAKE_DEFAULTS.material, help="preset name (default marble)")
     t.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
     t.add_argument("--k", type=int, default=BAKE_DEFAULTS.prt_directions,

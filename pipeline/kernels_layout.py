@@ -106,6 +106,31 @@ def kernel_error_bound(scales: np.ndarray, bits: int) -> np.ndarray:
     return np.asarray(scales, dtype=np.float64) / (2.0 * _code_max(bits))
 
 
+def welded_vertex_attribute(key: str, vertices: np.ndarray, count: int, description: str) -> VertexAttribute:
+    """A per-vertex attribute holding each render vertex's welded surface vertex.
+
+    Parameters
+    ----------
+    key : str
+    vertices : (p,) int64
+        The welded vertex of each render vertex of the primitive (``Surface.weld[j][vmapping]``).
+    count : int
+        Welded surface vertices of the mesh.
+    description : str
+
+    Returns
+    -------
+    VertexAttribute
+        (p,) uint16 when `count` < 65536, else (p, 2) uint16 ``lo, hi`` with ``vertex = lo + 65536 · hi``
+        (glTF has no 32-bit integer vertex attributes).
+    """
+    vertices = np.asarray(vertices, dtype=np.int64)
+    if vertices.ndim != 1 or (vertices.size and (vertices.min() < 0 or vertices.max() >= count)):
+        raise ValueError(f"{key}: vertices must be (p,) indices of the {count} welded vertices")
+    stored = vertices if count < 65536 else np.column_stack([vertices % 65536, vertices // 65536])
+    return VertexAttribute(key, stored.astype(np.float64), "", "uint16", description)
+
+
 def kernels_vertex_attributes(data: KernelsData, vertices: np.ndarray) -> tuple[VertexAttribute, ...]:
     """The per-vertex attribute of one primitive.
 
@@ -119,18 +144,12 @@ def kernels_vertex_attributes(data: KernelsData, vertices: np.ndarray) -> tuple[
     Returns
     -------
     tuple of VertexAttribute
-        ``sss:kernels:vertex``: (p,) uint16 when ``surface_vertex_count`` < 65536, else (p, 2)
-        uint16 ``lo, hi`` with ``vertex = lo + 65536 · hi``.
+        ``sss:kernels:vertex`` (`welded_vertex_attribute`).
     """
-    vertices = np.asarray(vertices, dtype=np.int64)
-    n = data.surface_vertex_count
-    if vertices.ndim != 1 or (vertices.size and (vertices.min() < 0 or vertices.max() >= n)):
-        raise ValueError(f"kernels layout: vertices must be (p,) indices of the {n} welded vertices")
-    stored = vertices if n < 65536 else np.column_stack([vertices % 65536, vertices // 65536])
     # One description for both widths: the file lists each attribute once, however many meshes use it.
-    return (VertexAttribute(VERTEX_KEY, stored.astype(np.float64), "", "uint16",
-                            "welded surface vertex of the render vertex (kernels tables): the value, or "
-                            "lo + 65536 * hi with two components"),)
+    return (welded_vertex_attribute(VERTEX_KEY, vertices, data.surface_vertex_count,
+                                    "welded surface vertex of the render vertex (kernels tables): the value, or "
+                                    "lo + 65536 * hi with two components"),)
 
 
 def _plain_tables(data: KernelsData) -> dict[str, np.ndarray]:

@@ -29,8 +29,8 @@ from .load import load_scene
 from .materials import Material
 from .options import BAKE_DEFAULTS
 from .reference import Light, reference_scattering
-from .tradeoff import image_exposure, lit_images, worst_rmse, write_outputs
-from .verify import PLAIN_ALBEDO, merged_primitive
+from .tradeoff import image_exposure, lit_images, tradeoff_result, worst_rmse
+from .verify import merged_primitive
 
 RESOLUTIONS = (256, 512, 1024)
 SIZES = (5, 7, 9)
@@ -152,19 +152,9 @@ def kernels_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mate
             row = default_row if (res, opts) == (resolution, options) else measure(res, opts)[0]
             rows.append({"sweep": sweep, **row})
 
-    light = RenderLight(False, tuple(test[0]), 1.0)
-    frame_sss = renderer.frame_ms([default_item], camera, light)
-    frame_plain = renderer.frame_ms([{**base, "albedo": PLAIN_ALBEDO}], camera, light)
+    result = tradeoff_result("kernels", path, out_dir, rows, renderer, camera, base, [default_item],
+                             len(surface.positions), material, mm_per_unit, test, _plot)
     renderer.release()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    stem = out_dir / f"{path.stem}.tradeoff.kernels"
-    result = {"asset": str(path), "vertices": len(surface.positions), "material": material.name,
-              "mm_per_unit": mm_per_unit, "lights": test.tolist(), "image_size": [size, size], "rows": rows,
-              "frame_ms_sss": frame_sss, "frame_ms_plain": frame_plain,
-              "frame_ratio": frame_sss / max(frame_plain, 1e-9),
-              "outputs": {"json": f"{stem}.json", "csv": f"{stem}.csv", "plot": f"{stem}.png"}}
-    write_outputs(result, stem, _plot)
     return result
 
 

@@ -48,7 +48,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
         ``reference_fraction``, ``weights``, ``tables``, ``refine``, ``bytes_per_vertex``, ``seconds``, ``rmse_image``),
         ``frame_ms_sss``, ``frame_ms_plain``, ``frame_ratio``, ``vertices``, ``outputs``.
     """
-    from .render import Renderer, RenderLight, fit_camera
+    from .render import Renderer, fit_camera
 
     path = Path(path)
     clean = clean_scene(load_scene(str(path)))
@@ -124,18 +124,47 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     if default_prt is None:
         default_prt = compress_prt(q, ds, surface.positions, surface.faces, material.eta)
 
-    light = RenderLight(False, tuple(test[0]), 1.0)
-    frame_sss = renderer.frame_ms([{**base, "prt": default_prt}], camera, light)
+    return tradeoff_result("prt", path, out_dir, rows, renderer, camera, base, [{**base, "prt": default_prt}],
+                           len(surface.positions), material, mm_per_unit, test)
+
+
+def tradeoff_result(technique: str, path: Path, out_dir: str | os.PathLike, rows: list[dict], renderer, camera,
+                    base: dict, runtime: list[dict], vertices: int, material: Material, mm_per_unit: float,
+                    lights: np.ndarray, plot=None) -> dict:
+    """A tradeoff's result with its frame times, written as ``<stem>.tradeoff.<technique>.json``,
+    ``.csv`` and ``.png`` into `out_dir` (`write_outputs`).
+
+    Parameters
+    ----------
+    rows : list of dict
+    renderer : render.Renderer
+    camera : render.Camera
+    base : dict
+        The render item without its data (see `lit_images`): with `PLAIN_ALBEDO`, the plain
+        shader the frame times are compared with.
+    runtime : list of dict
+        The items the technique's runtime draws (its default configuration).
+    vertices : int
+        The welded surface's vertex count.
+    lights : (m, 3) float64
+        The test lights (frames are timed under the first).
+    plot : callable, optional
+        ``plot(rows, path)`` (`write_outputs`).
+    """
+    from .render import RenderLight
+
+    light = RenderLight(False, tuple(lights[0]), 1.0)
+    frame_sss = renderer.frame_ms(runtime, camera, light)
     frame_plain = renderer.frame_ms([{**base, "albedo": PLAIN_ALBEDO}], camera, light)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    stem = out_dir / f"{path.stem}.tradeoff.prt"
-    result = {"asset": str(path), "vertices": len(surface.positions), "material": material.name,
-              "mm_per_unit": mm_per_unit, "lights": test.tolist(), "image_size": [size, size], "rows": rows,
+    stem = out_dir / f"{path.stem}.tradeoff.{technique}"
+    result = {"asset": str(path), "vertices": vertices, "material": material.name,
+              "mm_per_unit": mm_per_unit, "lights": lights.tolist(), "image_size": list(renderer.size), "rows": rows,
               "frame_ms_sss": frame_sss, "frame_ms_plain": frame_plain,
               "frame_ratio": frame_sss / max(frame_plain, 1e-9),
               "outputs": {"json": f"{stem}.json", "csv": f"{stem}.csv", "plot": f"{stem}.png"}}
-    write_outputs(result, stem)
+    write_outputs(result, stem, plot)
     return result
 
 

@@ -2,9 +2,14 @@
 camera and light, and measure the difference (shared by every technique).
 
 Per mesh instance the reference is `reference.reference_scattering` over the welded surface of
-what one draw holds (prt: a primitive; kernels: all primitives of the mesh, which share its atlas
-and its throughput matrix), in the mesh's frame with its ``scaleMm``, mapped back to the file's
-render vertices.
+what one draw holds (prt: a primitive; kernels and spectral: all primitives of the mesh, which
+share its atlas and throughput matrix, or the surface its normals were filtered on), in the mesh's
+frame with its ``scaleMm``, mapped back to the file's render vertices.
+
+Lambert images (the baseline, and spectral's subsurface normals, which the runtime shades with the
+plain Lambert shader) are per-vertex clamped cosines times shadow visibility, drawn as q, each
+scaled by its per-channel least-squares fit to the reference: a normal field sets where light
+lands, not the material's albedo.
 """
 
 from __future__ import annotations
@@ -20,14 +25,22 @@ import pygltflib
 
 from ..exporters.read_kernels import read_kernels_glb
 from ..exporters.read_prt import read_prt_glb
-from .clean import WELD_TOLERANCE, area_weighted_normals, weld_surface
+from ..exporters.read_spectral import read_spectral_glb
+from .clean import WELD_TOLERANCE, Surface, area_weighted_normals, weld_surface
 from .load import load_scene
 from .scene import Primitive
 from .materials import Material
+from .naive_normals import naive_normals
 from .reference import Light, reference_scattering
+from .spectral_precompute import SPECTRAL_DEFAULTS, naive_parameters
 from .visibility import direction_visibility, point_visibility
 
-TECHNIQUES = ("prt", "kernels")
+TECHNIQUES = ("prt", "kernels", "spectral")
+READERS = {"prt": read_prt_glb, "kernels": read_kernels_glb, "spectral": read_spectral_glb}
+#: A technique's bytes per vertex from its block of the bake report (spectral: the normal per
+#: render vertex plus the optional re-filtering tables per vertex).
+BYTES_PER_VERTEX = {"prt": lambda r: r["bytesPerVertex"]["total"], "kernels": lambda r: r["bytes"]["perVertex"],
+                    "spectral": lambda r: r["bytes"]["perVertex"] + r["bytes"]["normalPerRenderVertex"]}
 REFERENCES = ("exact", "clustered")
 DEFAULT_LIGHT = (0.4, 0.8, 0.45)
 #: Colour of the plain shader that frame times are compared with (its cost does not depend on it).
@@ -61,7 +74,11 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         ``technique``, ``light_dir`` (towards the light from the objects' centre), ``light_pos``
         (None for a directional light), ``reference``, ``rmse_image``, ``rmse_object``, ``rmse_object_lambert``,
         ``lambert_scale``, ``bytes_per_vertex``, ``bake_seconds``, ``frame_ms_sss``,
-        ``frame_ms_plain``, ``reference_seconds``, ``exposure``, ``pngs``.
+        ``frame_ms_plain``, ``reference_seconds``, ``exposure``, ``image_size``, ``pngs``; spectral
+        also ``spectral_scale`` (the fit applied to its image), ``rmse_object_naive`` and
+        ``naive_scale`` (Patro's naive normals, computed here from the file's geometry and
+        material with the precompute's defaults). Spectral's ``frame_ms_sss`` is the plain
+        shader's with the subsurface normals.
     """
     from .image_metrics import (best_fit_scale, rmse, shared_exposure, write_comparison_png,
                                 write_difference_png)
@@ -79,7 +96,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     point = None if light_pos is None else np.asarray(light_pos, dtype=np.float64)
     if point is not None and (point.shape != (3,) or not np.all(np.isfinite(point))):
         raise ValueError(f"verify: light position must be three finite numbers, got {light_pos}")
-    data = read_prt_glb(path) if technique == "prt" else read_kernels_glb(path)
+    data = READERS[technique](path)
     gltf = pygltflib.GLTF2.load(str(path))
     scene = load_scene(str(path))
     instances = []
@@ -102,7 +119,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         light_world = (point - centre) / np.linalg.norm(point - centre)
         intensity = float(np.linalg.norm(point - centre) * next(iter(mm_world))) ** 2
 
-    sss_items, ref_items, lambert_items = [], [], []
+    sss_items, ref_items, lambert_items, naive_items, normal_items = [], [], [], [], []
     t_ref = time.perf_counter()
     for mi, unit, world in instances:
         prims = [scene.meshes[mi].primitives[pi] for pi in unit]
@@ -115,30 +132,42 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         surface = weld_surface([prim], WELD_TOLERANCE * diagonal)
         weld = surface.weld[0]
         linear = world[:3, :3]
+        # Lambert of a normal field n: clip(n · towards, 0) · weight per render vertex.
         if point is None:
             omega = np.linalg.solve(linear, light_world)
             omega /= np.linalg.norm(omega)
             light = Light("directional", tuple(omega))
             visible = direction_visibility(surface.positions, surface.faces, surface.normals, omega[None])[weld, 0]
-            lambert = np.clip(normals @ omega, 0.0, None) * visible
+            towards, weight = omega[None], visible
         else:
             local = np.linalg.solve(linear, point - world[:3, 3])
             light = Light("point", position=tuple(local), intensity=intensity)
             visible = point_visibility(surface.positions, surface.faces, surface.normals, local)[weld]
             to_light = local - prim.positions
             distance = np.linalg.norm(to_light, axis=1)
-            cos = np.einsum("ij,ij->i", normals, to_light) / np.maximum(distance, 1e-300)
-            lambert = np.clip(cos, 0.0, None) * visible * intensity / np.maximum(distance * mm, 1e-300) ** 2
+            towards = to_light / np.maximum(distance, 1e-300)[:, None]
+            weight = visible * intensity / np.maximum(distance * mm, 1e-300) ** 2
+
+        def lambert_q(field: np.ndarray) -> np.ndarray:
+            """(n, 3) grey q of unit normals `field` (n, 3) at the render vertices."""
+            return np.repeat((np.clip(np.sum(field * towards, axis=1), 0.0, None) * weight)[:, None], 3, axis=1)
+
         ref = reference_scattering(surface, mm, material, light, clustered=reference_sum == "clustered")[:, weld]
         base = dict(positions=prim.positions, normals=normals, faces=prim.faces, model=world, eta=material.eta)
         if technique == "prt":
             sss_items.append({**base, "prt": data[(mi, unit[0])]})
-        else:
+        elif technique == "kernels":
             kernels = data[(mi, unit[0])][0]
             sss_items.append({**base, "kernels": kernels, "uvs": prim.uvs[-1],
                               "vertex_ids": np.concatenate([data[(mi, pi)][1] for pi in unit])})
+        else:
+            subsurface = np.concatenate([data[(mi, pi)] for pi in unit])
+            # The file's normals stay the item's: the q draw's exit Fresnel then matches the baseline's.
+            sss_items.append({**base, "q": lambert_q(subsurface)})
+            naive_items.append({**base, "q": lambert_q(default_naive_normals(surface, mm, material)[weld])})
+            normal_items.append({**base, "normals": subsurface, "albedo": PLAIN_ALBEDO})
         ref_items.append({**base, "q": ref.T})
-        lambert_items.append({**base, "q": np.repeat(lambert[:, None], 3, axis=1)})
+        lambert_items.append({**base, "q": lambert_q(normals)})
     reference_seconds = time.perf_counter() - t_ref
     if not any(np.any(it["q"] > 0) for it in ref_items):
         raise ValueError(f"verify: {path}: the light reaches no vertex (inside the object, or behind it)")
@@ -152,21 +181,32 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         light = RenderLight(True, tuple(point), intensity, next(iter(mm_world)))
     image, mask = renderer.render(sss_items, camera, light)
     reference, ref_mask = renderer.render(ref_items, camera, light)
-    lambert, _ = renderer.render(lambert_items, camera, light)
-    scale = best_fit_scale(lambert, reference, ref_mask)
-    lambert = lambert * scale
     exposure = shared_exposure(reference, ref_mask)
+
+    def fitted(drawn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W, 3) `drawn` times its per-channel best fit (3,) to the reference, and the fit."""
+        fit = best_fit_scale(drawn, reference, ref_mask)
+        return drawn * fit, fit
+
+    lambert, scale = fitted(renderer.render(lambert_items, camera, light)[0])
+    shown, extra = [reference, image, lambert], {}
+    if technique == "spectral":
+        image, spectral_scale = fitted(image)
+        naive, naive_scale = fitted(renderer.render(naive_items, camera, light)[0])
+        shown = [reference, image, lambert, naive]
+        extra = {"spectral_scale": spectral_scale.tolist(), "naive_scale": naive_scale.tolist(),
+                 "rmse_object_naive": rmse(naive, reference, exposure, ref_mask)}
 
     out_dir = Path(out_dir) if out_dir is not None else path.parent
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = f"{path.stem}.verify.{technique}"
     pngs = {"comparison": str(out_dir / f"{stem}.png"), "difference": str(out_dir / f"{stem}.diff.png")}
-    write_comparison_png(pngs["comparison"], [reference, image, lambert], exposure)
+    write_comparison_png(pngs["comparison"], shown, exposure)
     write_difference_png(pngs["difference"], image, reference, exposure)
 
     report = _bake_report(path)
     technique_reports = list(report.get(technique, {}).values())
-    per_vertex = (lambda r: r["bytesPerVertex"]["total"]) if technique == "prt" else (lambda r: r["bytes"]["perVertex"])
+    plain_items = [{k: v for k, v in it.items() if k != "q"} | {"albedo": PLAIN_ALBEDO} for it in lambert_items]
     return {
         "technique": technique,
         "light_dir": light_world.tolist(),
@@ -176,17 +216,26 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         "rmse_object": rmse(image, reference, exposure, ref_mask | mask),
         "rmse_object_lambert": rmse(lambert, reference, exposure, ref_mask),
         "lambert_scale": scale.tolist(),
-        "bytes_per_vertex": per_vertex(technique_reports[0]) if technique_reports else None,
+        "bytes_per_vertex": BYTES_PER_VERTEX[technique](technique_reports[0]) if technique_reports else None,
         "bake_seconds": report.get("seconds"),
-        "frame_ms_sss": renderer.frame_ms(sss_items, camera, light, frames),
+        # spectral's runtime is the plain shader fed the subsurface normals
+        "frame_ms_sss": renderer.frame_ms(normal_items if technique == "spectral" else sss_items, camera, light,
+                                          frames),
         # plain: the standard Lambert + specular shader, no SSS data
-        "frame_ms_plain": renderer.frame_ms([{k: v for k, v in it.items() if k != "q"} | {"albedo": PLAIN_ALBEDO}
-                                             for it in lambert_items], camera, light, frames),
+        "frame_ms_plain": renderer.frame_ms(plain_items, camera, light, frames),
         "reference_seconds": reference_seconds,
         "exposure": exposure,
         "image_size": [size, size],
         "pngs": pngs,
+        **extra,
     }
+
+
+def default_naive_normals(surface: Surface, mm_per_unit: float, material: Material) -> np.ndarray:
+    """(n, 3) Patro's naive normals of `surface`'s vertices with the spectral precompute's defaults
+    (σ_tr and radius from the material, `SPECTRAL_DEFAULTS.alpha`), without its eigensolve."""
+    sigma_tr, radius = naive_parameters(material)
+    return naive_normals(surface.positions * mm_per_unit, surface.normals, sigma_tr, SPECTRAL_DEFAULTS.alpha, radius)
 
 
 def merged_primitive(prims: list) -> Primitive:

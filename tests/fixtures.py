@@ -1,5 +1,9 @@
 """Tiny fixtures several test modules share."""
 
+import csv
+import json
+from pathlib import Path
+
 import numpy as np
 
 from sssbake.pipeline.baked import Fallback
@@ -58,3 +62,13 @@ def random_kernels(rng, n: int = 40, width: int = 24, height: int = 20, kernel_s
     )
     data.check()
     return data
+
+
+def assert_tradeoff_written(result: dict, json_name: str) -> None:
+    """A tradeoff's JSON holds `result` under `json_name`, its CSV the rows, its plot something."""
+    assert json.loads(Path(result["outputs"]["json"]).read_text()) == result
+    assert Path(result["outputs"]["json"]).name == json_name
+    with open(result["outputs"]["csv"]) as f:
+        saved = list(csv.DictReader(f))
+    assert len(saved) == len(result["rows"]) and list(saved[0]) == list(result["rows"][0])
+    assert Path(result["outputs"]["plot"]).stat().st_size > 0

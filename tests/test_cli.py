@@ -153,3 +153,78 @@ def test_unknown_technique_is_a_clear_error(tmp_path, capsys):
     (src / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     assert main(["bake", str(src), "-o", str(tmp_path / "out"), "--scale-mm", "1", "--techniques", "magic", "-q"]) != 0
     assert "unknown technique(s) ['magic']" in capsys.readouterr().err
+
+
+def test_spectral_bake_writes_normals_variant_and_basis(baked_samples, tmp_path):
+    import numpy as np
+    import pygltflib
+    from pxr import UsdGeom
+
+    from sssbake.exporters.gltf import dequantize, quantization_step, read_accessor, technique_tables
+    from sssbake.exporters.gltf_validator import ValidatorUnavailable, find_validator
+    from sssbake.pipeline.clean import clean_scene
+    from sssbake.pipeline.load import load_scene
+    from sssbake.pipeline.materials import preset
+    from sssbake.pipeline.spectral_precompute import SpectralOptions, precompute_spectral
+
+    src, _, _ = baked_samples
+    args = ["bake", str(src / "sphere.obj"), "-o", str(tmp_path), "--config", str(src / "sssbake.toml"),
+            "--atlas-resolution", "128", "--techniques", "spectral", "--spectral-eigenpairs", "40",
+            "--spectral-variant", "--spectral-basis", "-q"]
+    assert main(args) == 0
+    report = json.loads((tmp_path / "sphere.report.json").read_text())
+    variant_path = tmp_path / "sphere.sss_normals.glb"
+    assert str(variant_path) in report["outputs"] and report["stages"]["spectral"]["runs"] == 1
+    spectral = report["spectral"]["sphere.obj"]
+    assert spectral["eigenpairs"] == 40 and spectral["basis"] is True and spectral["bytes"]["basis"] > 0
+    try:
+        find_validator()
+        validated = ("gltf", "gltf_sss_normals", "usd")
+    except ValidatorUnavailable:
+        validated = ("usd",)
+    for name in validated:
+        assert report["validation"][name]["errors"] == report["validation"][name].get("warnings", 0) == 0, name
+
+    # the sample config: marble at 1 mm per unit
+    surface = clean_scene(load_scene(str(src / "sphere.obj"))).surfaces[0]
+    pre = precompute_spectral(surface, 1.0, preset("marble"), SpectralOptions(eigenpairs=40))
+    gltf = pygltflib.GLTF2.load(str(tmp_path / "sphere.glb"))
+    attributes = gltf.meshes[0].primitives[0].attributes
+    stored = dequantize(read_accessor(gltf, attributes._SSS_NORMAL), True)
+    ids = read_accessor(gltf, attributes._SSS_SPECTRAL_VERTEX).astype(np.int64)
+    step = quantization_step("snorm16")
+    assert np.abs(stored - pre.normals[ids]).max() <= step + 1e-9
+    assert np.abs(np.linalg.norm(stored, axis=1) - 1.0).max() <= 2 * step
+    tables = technique_tables(gltf, gltf.meshes[0], "spectral")
+    n, m = tables["vertexCount"], tables["eigenpairs"]
+    original = tables["basis"].reshape(n, m).astype(np.float64) @ tables["coefficients"] + tables["residual"]
+    np.testing.assert_allclose(original, surface.normals, atol=2e-6)
+
+    variant = pygltflib.GLTF2.load(str(variant_path))
+    v_attributes = variant.meshes[0].primitives[0].attributes
+    v_normal = read_accessor(variant, v_attributes.NORMAL).astype(np.float64)
+    np.testing.assert_allclose(v_normal, dequantize(read_accessor(variant, v_attributes._SSS_NORMAL), True),
+                               atol=2 * step)
+    np.testing.assert_allclose(v_normal, stored, atol=2 * step)
+    assert "spectral" not in variant.meshes[0].extras["sssbake"]
+    assert variant.extras["sssbake"]["variant"] == "sss_normals"
+
+    stage = Usd.Stage.Open(str(tmp_path / "sphere.usdc"))
+    mesh = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
+    primvar = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("sss:normal")
+    assert primvar.GetElementSize() == 3 and len(primvar.Get()) == 3 * len(UsdGeom.Mesh(mesh).GetPointsAttr().Get())
+
+
+@pytest.mark.parametrize("flags, needle", [
+    (["--techniques", "spectral", "--spectral-eigenpairs", "0"], "spectral: eigenpairs must be"),
+    (["--techniques", "spectral", "--spectral-width-mm", "-1"], "spectral: width_mm must be"),
+    (["--spectral-variant"], "spectral_variant needs the spectral technique"),
+])
+def test_bad_spectral_options_are_one_line(tmp_path, capsys, flags, needle):
+    generate(tmp_path / "s")
+    code = main(["bake", str(tmp_path / "s" / "sphere.obj"), "-o", str(tmp_path / "o"), "--scale-mm", "1", "-q",
+                 *flags])
+    assert code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert any("sphere.obj" in line and needle in line for line in err), err
+    assert not list((tmp_path / "o").glob("sphere.*"))

@@ -411,3 +411,47 @@ def test_uint16_attributes_must_be_integers_in_range():
             to_glb(replace(asset, vertex_attributes={(0, 0): (attr,)}))
     with pytest.raises(ValueError, match="reserved keys"):
         to_glb(replace(asset, mesh_extras={0: {"scaleMm": 1.0}}))
+
+
+def spectral_parts(prim: Primitive, m: int = 5) -> tuple[np.ndarray, tuple[VertexAttribute, ...], dict]:
+    """Tilted unit normals of `prim`'s vertices (welded one to one), their spectral attributes and
+    tables over a random basis of m harmonics."""
+    from sssbake.pipeline.spectral_layout import spectral_tables, spectral_vertex_attributes
+    from sssbake.pipeline.spectral_normals import normal_spectrum
+
+    n = len(prim.positions)
+    normals = prim.normals + 0.3 * np.sin(3 * prim.positions)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    rng = np.random.default_rng(3)
+    spectrum = normal_spectrum(rng.normal(size=(n, m)), np.sort(rng.uniform(0, 2, m)), 5.0, rng.uniform(0.5, 1, n),
+                               normals)
+    return normals, spectral_vertex_attributes(normals, np.arange(n), True), spectral_tables(spectrum, 0.7, 0.4)
+
+
+def test_spectral_normals_and_tables_round_trip_and_validate():
+    from sssbake.exporters.gltf import SHORT, technique_tables
+    from sssbake.exporters.gltf_validator import ValidatorUnavailable, validate_glb
+
+    asset = icosphere_asset()
+    normals, attrs, tables = spectral_parts(asset.scene.meshes[0].primitives[0])
+    asset = replace(asset, vertex_attributes={(0, 0): asset.vertex_attributes[(0, 0)] + attrs},
+                    mesh_extras={0: {"spectral": tables}})
+    data, summary = to_glb(asset)
+    gltf = pygltflib.GLTF2.load_from_bytes(data)
+    index = gltf.meshes[0].primitives[0].attributes._SSS_NORMAL
+    acc = gltf.accessors[index]
+    assert (acc.componentType, acc.type, acc.normalized) == (SHORT, "VEC3", True)
+    assert gltf.bufferViews[acc.bufferView].byteStride == 8 and summary["bytes_per_vertex"]["_SSS_NORMAL"] == 8
+    decoded = dequantize(read_accessor(gltf, index), True)
+    assert np.abs(decoded - normals).max() <= quantization_step("snorm16") + 1e-12
+    read = technique_tables(gltf, gltf.meshes[0], "spectral")
+    for name, value in tables.items():
+        np.testing.assert_array_equal(read[name], value)
+    schema = json.loads(resources.files("sssbake.exporters").joinpath("schema/sssbake.schema.json").read_text())
+    sub = {"$schema": schema["$schema"], "$defs": schema["$defs"]}
+    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(gltf.meshes[0].extras["sssbake"])
+    try:
+        report = validate_glb(data)
+    except ValidatorUnavailable as exc:
+        pytest.skip(str(exc))
+    assert (report.num_errors, report.num_warnings) == (0, 0), report.to_json()

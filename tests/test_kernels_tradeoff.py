@@ -1,7 +1,6 @@
 """kernels tradeoff: every sweep runs on the GPU runtime, the knobs move bytes, F's non-zeros and
 RMSE the way they must, and the results are written as JSON/CSV/plot."""
 
-import csv
 import json
 import math
 from pathlib import Path
@@ -9,6 +8,7 @@ from pathlib import Path
 import pytest
 import trimesh
 
+from fixtures import assert_tradeoff_written
 from sssbake.pipeline.cli import main
 from sssbake.pipeline.kernels_tradeoff import KNOBS, kernels_tradeoff
 from sssbake.pipeline.materials import preset
@@ -68,12 +68,7 @@ def test_knobs_cost_and_buy_what_they_should(result):
 
 
 def test_results_are_written(result):
-    assert json.loads(Path(result["outputs"]["json"]).read_text()) == result
-    assert Path(result["outputs"]["json"]).name == "ball.tradeoff.kernels.json"
-    with open(result["outputs"]["csv"]) as f:
-        saved = list(csv.DictReader(f))
-    assert len(saved) == len(result["rows"]) and list(saved[0]) == list(result["rows"][0])
-    assert Path(result["outputs"]["plot"]).stat().st_size > 0
+    assert_tradeoff_written(result, "ball.tradeoff.kernels.json")
 
 
 def test_cli_runs_the_kernels_sweeps(sphere, tmp_path, capsys):

@@ -275,3 +275,23 @@ def test_mesh_extras_tables_and_integer_primvars(tmp_path):
     primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("sss:prt:ref")
     assert str(primvar.GetTypeName()) == "int[]" and primvar.GetElementSize() == 2
     np.testing.assert_array_equal(np.asarray(primvar.Get()).reshape(n, 2), index.data)
+
+
+def test_spectral_normal_primvar_and_tables(tmp_path):
+    from sssbake.exporters.usd import technique_tables
+    from test_gltf import spectral_parts
+
+    asset = icosphere_asset()
+    normals, attrs, tables = spectral_parts(asset.scene.meshes[0].primitives[0])
+    write_usdc(replace(asset, vertex_attributes={(0, 0): attrs}, mesh_extras={0: {"spectral": tables}}),
+               tmp_path / "s.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "s.usdc"))  # held: its prims die with it
+    prim = stage.GetPrimAtPath("/s/root/sphere")
+    primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("sss:normal")
+    values = np.asarray(primvar.Get())
+    assert str(primvar.GetTypeName()) == "float[]" and primvar.GetElementSize() == 3
+    assert primvar.GetInterpolation() == UsdGeom.Tokens.vertex and values.shape == (3 * len(normals),)
+    np.testing.assert_array_equal(values.reshape(-1, 3), normals.astype(np.float32))
+    read = technique_tables(prim, "spectral")
+    for name, value in tables.items():
+        np.testing.assert_array_equal(read[name], value)
