@@ -60,13 +60,16 @@ def solve_u(xi: np.ndarray, sigma_z: np.ndarray) -> np.ndarray:
     raise RuntimeError("dipole sampling: Newton did not converge")  # cannot happen for valid input
 
 
-def sample_radii(xi_term: np.ndarray, xi_radius: np.ndarray, params: DipoleParams, channel: int) -> np.ndarray:
-    """Radii (mm) distributed as Rd(r)·r in one colour channel, from two uniform numbers each.
+def sample_radii(xi: np.ndarray, params: DipoleParams, channel: int) -> np.ndarray:
+    """Radii (mm) distributed as Rd(r)·r in one colour channel, one uniform number each.
+
+    ξ below the real term's probability p picks the real source and ξ / p its radius, the rest the
+    virtual one and (ξ - p) / (1 - p): one number does both, so stratified ξ stay stratified.
 
     Parameters
     ----------
-    xi_term, xi_radius : (m,) float64
-        In [0, 1) and [0, XI_MAX]: the first picks the real or virtual source, the second the radius.
+    xi : (m,) float64
+        In [0, 1).
     params : DipoleParams
     channel : int
         0, 1 or 2.
@@ -75,12 +78,15 @@ def sample_radii(xi_term: np.ndarray, xi_radius: np.ndarray, params: DipoleParam
     -------
     (m,) float64
     """
+    xi = np.asarray(xi, dtype=np.float64)
     sigma = float(params.sigma_tr[channel])
     z_r, z_v = float(params.z_r[channel]), float(params.z_v[channel])
     # e^(-σ z_r) / (e^(-σ z_r) + e^(-σ z_v)), written so that neither exponential underflows
     p_real = 1.0 / (1.0 + np.exp(-sigma * (z_v - z_r)))
-    z = np.where(np.asarray(xi_term) < p_real, z_r, z_v)
-    u = solve_u(xi_radius, sigma * z)
+    real = xi < p_real
+    within = np.where(real, xi / p_real, (xi - p_real) / max(1.0 - p_real, 1e-300))
+    z = np.where(real, z_r, z_v)
+    u = solve_u(np.clip(within, 0.0, XI_MAX), sigma * z)
     return z * np.sqrt(np.maximum(u * u - 1.0, 0.0))
 
 

@@ -34,7 +34,7 @@ def test_samples_follow_rd_times_r(name):
     p = DipoleParams.from_material(preset(name))
     rng = np.random.default_rng(7)
     for c in range(3):
-        r = sample_radii(rng.random(100_000), rng.random(100_000) * XI_MAX, p, c)
+        r = sample_radii(rng.random(100_000), p, c)
         assert stats.kstest(r, lambda x: radius_cdf(x, p, c)).pvalue > 1e-3
 
 
@@ -43,3 +43,12 @@ def test_bad_numbers_raise():
         solve_u(np.array([1.0]), 1.0)
     with pytest.raises(ValueError, match="dipole sampling"):
         solve_u(np.array([0.5]), -1.0)
+
+
+def test_extreme_numbers_give_finite_radii_and_stratification_survives():
+    p = DipoleParams.from_material(preset("marble"))
+    r = sample_radii(np.array([0.0, 1e-300, 0.5, 1.0 - 1e-16]), p, 1)
+    assert r[0] == 0.0 and np.all(np.isfinite(r)) and radius_cdf(r[-1], p, 1) > 1.0 - 1e-11
+    # one stratified ξ per stratum gives one radius per CDF stratum
+    xi = (np.arange(200) + 0.5) / 200
+    assert np.allclose(np.sort(radius_cdf(sample_radii(xi, p, 1), p, 1)), xi, atol=1e-9)
