@@ -49,6 +49,13 @@ def test_extreme_numbers_give_finite_radii_and_stratification_survives():
     p = DipoleParams.from_material(preset("marble"))
     r = sample_radii(np.array([0.0, 1e-300, 0.5, 1.0 - 1e-16]), p, 1)
     assert r[0] == 0.0 and np.all(np.isfinite(r)) and radius_cdf(r[-1], p, 1) > 1.0 - 1e-11
-    # one stratified ξ per stratum gives one radius per CDF stratum
+    # strata of ξ are strata of each term's own CDF, 1 - e^(-σz(u - 1)) / u
     xi = (np.arange(200) + 0.5) / 200
-    assert np.allclose(np.sort(radius_cdf(sample_radii(xi, p, 1), p, 1)), xi, atol=1e-9)
+    r = sample_radii(xi, p, 1)
+    sigma, z_r, z_v = p.sigma_tr[1], p.z_r[1], p.z_v[1]
+    p_real = np.exp(-sigma * z_r) / (np.exp(-sigma * z_r) + np.exp(-sigma * z_v))
+    real = xi < p_real
+    z = np.where(real, z_r, z_v)
+    u = np.sqrt(r * r + z * z) / z
+    term_cdf = 1.0 - np.exp(-sigma * z * (u - 1.0)) / u
+    assert np.allclose(term_cdf, np.where(real, xi / p_real, (xi - p_real) / (1.0 - p_real)), atol=1e-9)
