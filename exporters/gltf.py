@@ -7,7 +7,8 @@ Layout of the file (documented for readers in ``exporters/schema/sssbake.schema.
   each sssbake vertex attribute as an application-specific attribute ``_KEY`` stored in its
   own buffer view with a 4-byte-aligned ``byteStride``;
 - translucent materials get ``KHR_materials_volume``, ``KHR_materials_diffuse_transmission`` and
-  ``KHR_materials_ior`` (all optional: listed in ``extensionsUsed`` only), ``extras.sssbake``,
+  ``KHR_materials_ior`` (all optional: listed in ``extensionsUsed`` only), ``extras.sssbake``
+  (with `BakedAsset.material_extras`' technique data, such as screen, arrays as table accessors),
   and are single-sided (see `TRANSLUCENT_EXTENSIONS`);
 - the root ``extras.sssbake`` holds the asset-level data; numpy arrays found in
   ``BakedAsset.extras`` become accessors ("tables") referenced as ``{"accessor": index}``.
@@ -25,7 +26,13 @@ from pathlib import Path
 import numpy as np
 import pygltflib as g
 
-from ..pipeline.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
+from ..pipeline.baked import (
+    SCHEMA_VERSION,
+    BakedAsset,
+    ScatteringMaterial,
+    VertexAttribute,
+    check_material_references,
+)
 from ..pipeline.scene import SourceMaterial, TextureRef
 from .atomic import atomic_path
 from .finite import check_finite, finite_number
@@ -164,9 +171,10 @@ def read_accessor(gltf: g.GLTF2, index: int, blob: bytes | None = None) -> np.nd
     return values
 
 
-def technique_tables(gltf: g.GLTF2, mesh: g.Mesh, technique: str, blob: bytes | None = None) -> dict | None:
-    """A mesh's ``extras.sssbake[technique]`` with every ``{"accessor": i}`` read into its array;
-    None when the mesh has no such data."""
+def technique_tables(gltf: g.GLTF2, mesh: g.Mesh | g.Material, technique: str,
+                     blob: bytes | None = None) -> dict | None:
+    """A mesh's (or material's) ``extras.sssbake[technique]`` with every ``{"accessor": i}`` read
+    into its array; None when it has no such data."""
     tables = ((mesh.extras or {}).get("sssbake") or {}).get(technique)
     if tables is None:
         return None
@@ -210,14 +218,15 @@ def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
             gltf.samplers.append(g.Sampler(magFilter=key[0], minFilter=key[1], wrapS=key[2], wrapT=key[3]))
         gltf.textures.append(g.Texture(sampler=samplers[key], source=tex.image))
 
+    check_material_references(asset)
     used: set[str] = set()
     for m, src in enumerate(scene.materials):
         material, extensions = _material(src, asset.scattering.get(m))
+        if m in asset.material_extras:
+            _technique_extras(material.extras["sssbake"], asset.material_extras[m], packer,
+                              f"material {src.name!r} extras")
         gltf.materials.append(material)
         used.update(extensions)
-    unknown = set(asset.scattering) - set(range(len(scene.materials)))
-    if unknown:
-        raise ValueError(f"scattering refers to materials {sorted(unknown)} not in the scene")
 
     _check_attribute_keys(asset)
     vertex_counts: dict[str, int] = {}
@@ -242,11 +251,7 @@ def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
             extras["sssbake"] = {"schemaVersion": SCHEMA_VERSION}
             if i in asset.scale_mm:
                 extras["sssbake"]["scaleMm"] = finite_number(asset.scale_mm[i], f"scale_mm of mesh {mesh.name!r}")
-            data = asset.mesh_extras.get(i, {})
-            clash = sorted(set(data) & set(extras["sssbake"]))
-            if clash:
-                raise ValueError(f"mesh {mesh.name!r} extras use reserved keys {clash}")
-            extras["sssbake"].update(_json_value(data, packer, f"mesh {mesh.name!r} extras"))
+            _technique_extras(extras["sssbake"], asset.mesh_extras.get(i, {}), packer, f"mesh {mesh.name!r} extras")
         gltf.meshes.append(g.Mesh(name=mesh.name or None, primitives=prims, extras=extras))
 
     for node in scene.nodes:
@@ -558,6 +563,14 @@ def _asset_extras(asset: BakedAsset, packer: _Packer) -> dict:
                 raise ValueError(f"attribute {attr.gltf_name} is described differently on different primitives")
     extras["attributes"] = list(described.values())
     return extras
+
+
+def _technique_extras(sssbake: dict, data: dict, packer: _Packer, where: str) -> None:
+    """Add a mesh's or material's technique data to its ``extras.sssbake`` (arrays become tables)."""
+    clash = sorted(set(data) & set(sssbake))
+    if clash:
+        raise ValueError(f"{where} use reserved keys {clash}")
+    sssbake.update(_json_value(data, packer, where))
 
 
 def _json_value(value, packer: _Packer, where: str):

@@ -24,6 +24,9 @@ Layout of the file (one self-contained crate file):
   as ``{"attribute": "sss:tables:t<i>", "shape": [...]}``;
 - on each Mesh prim of a mesh with `BakedAsset.mesh_extras` (technique data such as prt), its own
   ``sss:extras`` JSON and ``sss:tables:t<i>`` attributes, the same way;
+- on each translucent Material prim with `BakedAsset.material_extras` (technique data such as
+  screen), its own ``sss:extras`` JSON, the tables as attributes named by their keys
+  (``sss:screen:offsets``, ``sss:screen:weights``, ``sss:screen:rdTable``);
 
 Textures are not written: a .usdc cannot embed images, and files next to it would break the
 one-file output. Everything is float32 except matrices and ``sss:scaleMm`` (double).
@@ -40,7 +43,13 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
-from ..pipeline.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
+from ..pipeline.baked import (
+    SCHEMA_VERSION,
+    BakedAsset,
+    ScatteringMaterial,
+    VertexAttribute,
+    check_material_references,
+)
 from ..pipeline.scene import Primitive, SourceMaterial
 from .atomic import atomic_path
 from .finite import check_finite, finite_number
@@ -308,6 +317,10 @@ def _materials(stage: Usd.Stage, scope_path: Sdf.Path, asset: BakedAsset) -> lis
         if scattering is not None:
             for name, type_name, value in _scattering_attributes(scattering, f"material {src.name!r}"):
                 material.GetPrim().CreateAttribute(name, type_name, custom=True).Set(value)
+            if m in asset.material_extras:
+                _string_attribute(material.GetPrim(), SSS + "extras",
+                                  _extras_json(asset.material_extras[m], material.GetPrim(),
+                                               f"material {src.name!r} extras", named=True))
         out.append(material)
     return out
 
@@ -365,17 +378,18 @@ def _scattering_attributes(scattering: ScatteringMaterial, what: str) -> list[tu
     return out
 
 
-def _extras_json(extras: dict, root: Usd.Prim, where: str) -> str:
-    """`extras` as JSON; numpy arrays become ``sss:tables:t<i>`` attributes on `root`."""
+def _extras_json(extras: dict, root: Usd.Prim, where: str, named: bool = False) -> str:
+    """`extras` as JSON; numpy arrays become ``sss:tables:t<i>`` attributes on `root` (`named`:
+    ``sss:<key>:<key>...``, the array's keys in `extras`, e.g. ``sss:screen:offsets``)."""
     tables: list[Usd.Attribute] = []
 
-    def convert(value, where: str):
+    def convert(value, where: str, keys: tuple):
         if isinstance(value, dict):
-            return {str(k): convert(v, f"{where}.{k}") for k, v in value.items()}
+            return {str(k): convert(v, f"{where}.{k}", keys + (str(k),)) for k, v in value.items()}
         if isinstance(value, (list, tuple)):
-            return [convert(v, f"{where}[{i}]") for i, v in enumerate(value)]
+            return [convert(v, f"{where}[{i}]", keys + (str(i),)) for i, v in enumerate(value)]
         if isinstance(value, np.ndarray) and value.ndim > 0:
-            name = f"{SSS}tables:t{len(tables)}"
+            name = SSS + ":".join(keys) if named else f"{SSS}tables:t{len(tables)}"
             tables.append(_table(root, name, value, where))
             return {"attribute": name, "shape": list(value.shape)}
         if isinstance(value, (np.generic, np.ndarray)):
@@ -384,14 +398,14 @@ def _extras_json(extras: dict, root: Usd.Prim, where: str) -> str:
             raise ValueError(f"{where} is not finite: {value}")
         return value
 
-    return json.dumps(convert(extras, where), sort_keys=True, allow_nan=False)
+    return json.dumps(convert(extras, where, ()), sort_keys=True, allow_nan=False)
 
 
 def technique_tables(prim: Usd.Prim, technique: str) -> dict | None:
-    """A Mesh prim's ``sss:extras[technique]`` with every ``{"attribute": name, "shape": ...}`` read
-    into its array; None when the prim has no such data."""
+    """A Mesh or Material prim's ``sss:extras[technique]`` with every ``{"attribute": name, "shape":
+    ...}`` read into its array; None when the prim has no such data."""
     attr = prim.GetAttribute("sss:extras")
-    if not prim.IsA(UsdGeom.Mesh) or not attr:
+    if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdShade.Material)) or not attr:
         return None
     tables = json.loads(attr.Get()).get(technique)
     if tables is None:
@@ -426,9 +440,7 @@ def _check_references(asset: BakedAsset) -> None:
     for i, j in asset.vertex_attributes:
         if not (0 <= i < len(scene.meshes) and 0 <= j < len(scene.meshes[i].primitives)):
             raise ValueError(f"vertex_attributes refer to mesh {i} primitive {j}, which the scene lacks")
-    unknown = set(asset.scattering) - set(range(len(scene.materials)))
-    if unknown:
-        raise ValueError(f"scattering refers to materials {sorted(unknown)} not in the scene")
+    check_material_references(asset)
     for mesh in scene.meshes:
         for j, prim in enumerate(mesh.primitives):
             if prim.material is not None and not 0 <= prim.material < len(scene.materials):

@@ -33,6 +33,7 @@ from .kernels_stage import bake_kernels
 from .prt_compress import PrtCompressOptions
 from .prt_layout import prt_tables, prt_vertex_attributes
 from .prt_stage import bake_prt
+from .screen_stage import bake_screen
 from .scene import Image, Mesh, Scene, SourceMaterial, Texture, TextureRef
 from .spectral_layout import normals_variant, spectral_vertex_attributes
 from .spectral_stage import bake_spectral
@@ -42,7 +43,7 @@ from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
 STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
-                  "spectral": 1}
+                  "spectral": 1, "screen": 1}
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
 
@@ -190,6 +191,8 @@ def bake_asset(
         runner.skip("kernels", "not requested (--techniques kernels)")
     if "spectral" not in options.techniques:
         runner.skip("spectral", "not requested (--techniques spectral)")
+    if "screen" not in options.techniques:
+        runner.skip("screen", "not requested (--techniques screen)")
     mesh_extras: dict[int, dict] = {}
     prt_reports: dict[str, dict] = {}
     kernels_reports: dict[str, dict] = {}
@@ -322,13 +325,25 @@ def bake_asset(
             src: SourceMaterial = scene.materials[m]
             scattering[m] = ScatteringMaterial(material_of[m], fb, src.name)
 
+    material_extras: dict[int, dict] = {}
+    screen_reports: dict[str, dict] = {}
+    if "screen" in options.techniques:
+        for m, s in sorted(scattering.items()):
+            # Per material, no mesh data: keyed on the material and the options alone.
+            baked_s, _ = runner.run("screen", STAGE_VERSIONS["screen"], "material",
+                                    {"material": s.material.to_json(), "options": options.screen().__dict__},
+                                    bake_screen, s.material, options.screen())
+            material_extras[m] = {"screen": baked_s.tables}
+            name = scene.materials[m].name
+            screen_reports[name if name not in screen_reports else f"{name}#{m}"] = baked_s.report
+
     baked_scene = replace(scene, meshes=tuple(meshes), images=tuple(images), textures=tuple(textures))
     extras = {
         "scaleMmPerUnit": mm_per_unit,
         "scaleSource": scale_source,
         "thickness": {"unit": "mm", "raysPerSample": options.thickness_rays, "missCap": "bounding-box diagonal"},
     }
-    asset = BakedAsset(baked_scene, attributes, scattering, scale_mm, extras, mesh_extras)
+    asset = BakedAsset(baked_scene, attributes, scattering, scale_mm, extras, mesh_extras, material_extras)
     written: list[Path] = []
     try:
         summaries = {}
@@ -365,6 +380,7 @@ def bake_asset(
             "prt": prt_reports,
             "kernels": kernels_reports,
             "spectral": spectral_reports,
+            "screen": screen_reports,
             "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"} for fmt, summary in summaries.items()},
             "validation": validation,
             "stages": runner.to_json(),

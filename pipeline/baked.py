@@ -12,7 +12,7 @@ import numpy as np
 from .materials import Material
 from .scene import Scene, TextureRef
 
-SCHEMA_VERSION = "1.5.0"
+SCHEMA_VERSION = "1.6.0"
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,6 +117,10 @@ class BakedAsset:
         Mesh index -> JSON-able dict of technique data for that mesh (e.g. ``{"prt": {...}}``),
         written into the mesh's ``extras.sssbake`` (glTF) and onto each of its USD Mesh prims.
         Numpy arrays in it become binary tables (glTF accessors, USD array attributes).
+    material_extras : dict
+        Scene material index -> JSON-able dict of technique data for that material (e.g.
+        ``{"screen": {...}}``), written into the material's ``extras.sssbake`` (glTF) and onto its
+        USD Material prim (``sss:extras`` JSON, tables as ``sss:<technique>:<key>`` attributes).
     """
 
     scene: Scene
@@ -125,3 +129,17 @@ class BakedAsset:
     scale_mm: dict[int, float] = field(default_factory=dict)
     extras: dict = field(default_factory=dict)
     mesh_extras: dict[int, dict] = field(default_factory=dict)
+    material_extras: dict[int, dict] = field(default_factory=dict)
+
+
+def check_material_references(asset: BakedAsset) -> None:
+    """Raise ValueError when `asset.scattering` or `asset.material_extras` names a material the
+    scene lacks, or technique data sits on a material with no scattering material."""
+    count = len(asset.scene.materials)
+    for what, refs in (("scattering", asset.scattering), ("material_extras", asset.material_extras)):
+        unknown = set(refs) - set(range(count))
+        if unknown:
+            raise ValueError(f"{what} refers to materials {sorted(unknown)} not in the scene")
+    bare = sorted(set(asset.material_extras) - set(asset.scattering))
+    if bare:
+        raise ValueError(f"material_extras of materials {bare} that have no scattering material")

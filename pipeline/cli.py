@@ -38,7 +38,8 @@ def _bake(args) -> int:
                  "prt_weight_bits", "prt_byte_budget", "prt_reference_floor", "prt_detail_order",
                  "kernels_size", "kernels_threshold", "kernels_blend", "kernels_seams", "kernels_bits",
                  "kernels_global_vertices", "spectral_eigenpairs", "spectral_width_mm", "spectral_alpha",
-                 "spectral_radius_mm", "spectral_variant", "spectral_basis"):
+                 "spectral_radius_mm", "spectral_variant", "spectral_basis", "screen_samples", "screen_uniform",
+                 "screen_table_error"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -214,7 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
     b.add_argument("--atlas-resolution", type=int, help=f"atlas texels per side (default {BAKE_DEFAULTS.atlas_resolution})")
     b.add_argument("--techniques", help="comma-separated techniques to bake besides the fallback: prt, kernels, "
-                                       "spectral")
+                                       "spectral, screen")
     b.add_argument("--prt-directions", type=int, help=f"prt: light directions K (default {BAKE_DEFAULTS.prt_directions})")
     b.add_argument("--prt-energy-dropped", type=float,
                    help=f"prt: fraction of R_d the gather radius may drop (default {BAKE_DEFAULTS.prt_energy_dropped})")
@@ -271,6 +272,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--spectral-basis", action="store_true", default=None,
                    help="spectral: also export the spectrum (coefficients, eigenvalues, residual, basis) to filter "
                         "again at runtime")
+    for name, kind, what in (("samples", int, "importance-sampled offsets per material"),
+                             ("uniform", int, "uniform offsets per material, 0 for none"),
+                             ("table_error", float, "bound on the Rd table's relative interpolation error")):
+        b.add_argument("--screen-" + name.replace("_", "-"), type=kind,
+                       help=f"screen: {what} (default {getattr(BAKE_DEFAULTS, 'screen_' + name):g})")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")

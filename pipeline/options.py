@@ -8,12 +8,13 @@ from .kernels_layout import KERNEL_BITS
 from .kernels_precompute import KERNELS_DEFAULTS, KernelsOptions
 from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, TABLES, WEIGHT_BITS, WEIGHTS
 from .scatter_operator import SCATTER_DEFAULTS
+from .screen_samples import SCREEN_DEFAULTS, ScreenOptions
 from .sh import MAX_ORDER
 from .spectral_precompute import SPECTRAL_DEFAULTS, SpectralOptions
 
 OPAQUE = "opaque"
 #: Techniques `bake` can run.
-TECHNIQUES = ("prt", "kernels", "spectral")
+TECHNIQUES = ("prt", "kernels", "spectral", "screen")
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,9 @@ class BakeOptions:
     spectral_basis : bool
         spectral: also export the spectrum (coefficients, eigenvalues, residual, basis) so that a
         runtime can filter again.
+    screen_samples, screen_uniform, screen_table_error
+        screen precompute (see `screen_samples.ScreenOptions`): importance-sampled and uniform
+        offsets, bound on the Rd table's relative interpolation error.
     """
 
     material: str | dict = "marble"
@@ -95,6 +99,9 @@ class BakeOptions:
     spectral_radius_mm: float | None = SPECTRAL_DEFAULTS.radius_mm
     spectral_variant: bool = False
     spectral_basis: bool = False
+    screen_samples: int = SCREEN_DEFAULTS.samples
+    screen_uniform: int = SCREEN_DEFAULTS.uniform
+    screen_table_error: float = SCREEN_DEFAULTS.table_error
 
     def kernels(self) -> KernelsOptions:
         return KernelsOptions(self.kernels_size, self.kernels_threshold, self.kernels_blend, self.kernels_seams,
@@ -103,6 +110,9 @@ class BakeOptions:
     def spectral(self) -> SpectralOptions:
         return SpectralOptions(self.spectral_eigenpairs, self.spectral_width_mm, self.spectral_alpha,
                                self.spectral_radius_mm)
+
+    def screen(self) -> ScreenOptions:
+        return ScreenOptions(self.screen_samples, self.screen_uniform, self.screen_table_error)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -161,6 +171,7 @@ def check_options(o: BakeOptions) -> None:
     if o.kernels_bits not in KERNEL_BITS:
         raise ValueError(f"kernels_bits must be one of {list(KERNEL_BITS)}, got {o.kernels_bits!r}")
     o.spectral().check()
+    o.screen().check()
     for name in ("spectral_variant", "spectral_basis"):
         if not isinstance(getattr(o, name), bool):
             raise ValueError(f"{name} must be true or false, got {getattr(o, name)!r}")

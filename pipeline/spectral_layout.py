@@ -146,4 +146,4 @@ def normals_variant(asset: BakedAsset) -> BakedAsset:
             prims[pi] = replace(prims[pi], normals=normal.data)
             meshes[mi] = Mesh(meshes[mi].name, tuple(prims))
     return replace(asset, scene=replace(asset.scene, meshes=tuple(meshes)), vertex_attributes=attributes,
-                   mesh_extras={}, extras={**asset.extras, "variant": "sss_normals"})
+                   mesh_extras={}, material_extras={}, extras={**asset.extras, "variant": "sss_normals"})

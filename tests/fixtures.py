@@ -72,3 +72,22 @@ def assert_tradeoff_written(result: dict, json_name: str) -> None:
         saved = list(csv.DictReader(f))
     assert len(saved) == len(result["rows"]) and list(saved[0]) == list(result["rows"][0])
     assert Path(result["outputs"]["plot"]).stat().st_size > 0
+
+
+def bake_screen_sphere(folder: Path, **overrides):
+    """Bake a small generated icosphere (marble, 1 mm per unit) with the screen technique alone.
+
+    Returns the `BakeResult` and the `BakeOptions` it was baked with.
+    """
+    import trimesh
+
+    from sssbake.pipeline.bake import bake_asset
+    from sssbake.pipeline.cache import StageCache
+    from sssbake.pipeline.options import BakeOptions
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    trimesh.creation.icosphere(subdivisions=2, radius=5.0).export(folder / "ball.obj")
+    options = BakeOptions(material="marble", scale_mm=1.0, atlas_resolution=64, techniques=("screen",),
+                          validate=False, **overrides)
+    return bake_asset(folder / "ball.obj", options, folder / "ball", StageCache(None)), options

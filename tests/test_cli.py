@@ -228,3 +228,43 @@ def test_bad_spectral_options_are_one_line(tmp_path, capsys, flags, needle):
     err = capsys.readouterr().err.strip().splitlines()
     assert any("sphere.obj" in line and needle in line for line in err), err
     assert not list((tmp_path / "o").glob("sphere.*"))
+
+
+def test_screen_bake_exports_the_material_tables(tmp_path):
+    import pygltflib
+
+    from sssbake.exporters.gltf import technique_tables
+
+    generate(tmp_path / "s")
+    args = ["bake", str(tmp_path / "s" / "sphere.obj"), "-o", str(tmp_path / "o"), "--scale-mm", "1",
+            "--atlas-resolution", "64", "--techniques", "screen", "--screen-samples", "9", "--screen-uniform", "2",
+            "--screen-table-error", "0.01", "--no-validate", "-q"]
+    assert main(args) == 0
+    report = json.loads((tmp_path / "o" / "sphere.report.json").read_text())
+    (entry,) = report["screen"].values()
+    assert entry["options"]["samples"] == 9 and entry["offsets"] == 11 and entry["tableError"] <= 0.01
+    assert report["stages"]["screen"]["runs"] == 1 and "skipped" not in report["stages"]["screen"]
+    gltf = pygltflib.GLTF2.load(str(tmp_path / "o" / "sphere.glb"))
+    tables = next(t for t in (technique_tables(gltf, m, "screen") for m in gltf.materials) if t is not None)
+    assert tables["offsets"].shape == (11, 2) and tables["uniform"] == 2
+
+
+def test_screen_is_skipped_when_not_asked(baked_samples):
+    _, out, _ = baked_samples
+    report = json.loads((out / "sphere.report.json").read_text())
+    assert report["screen"] == {} and "not requested" in report["stages"]["screen"]["skipped"]
+
+
+@pytest.mark.parametrize("flags, needle", [
+    (["--screen-samples", "0"], "screen: samples must be"),
+    (["--screen-uniform", "-2"], "screen: uniform must be"),
+    (["--screen-table-error", "1"], "screen: table_error must be"),
+])
+def test_bad_screen_options_are_one_line(tmp_path, capsys, flags, needle):
+    generate(tmp_path / "s")
+    code = main(["bake", str(tmp_path / "s" / "sphere.obj"), "-o", str(tmp_path / "o"), "--scale-mm", "1", "-q",
+                 "--techniques", "screen", *flags])
+    assert code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert any("sphere.obj" in line and needle in line for line in err), err
+    assert not list((tmp_path / "o").glob("sphere.*"))

@@ -455,3 +455,47 @@ def test_spectral_normals_and_tables_round_trip_and_validate():
     except ValidatorUnavailable as exc:
         pytest.skip(str(exc))
     assert (report.num_errors, report.num_warnings) == (0, 0), report.to_json()
+
+
+def test_screen_tables_on_the_material_round_trip_and_validate(tmp_path):
+    from sssbake.exporters.gltf import FLOAT, technique_tables
+    from sssbake.exporters.gltf_validator import ValidatorUnavailable, validate_glb
+    from sssbake.pipeline.screen_samples import screen_samples
+    from fixtures import bake_screen_sphere
+
+    result, options = bake_screen_sphere(tmp_path, screen_samples=12, screen_uniform=4)
+    data = (tmp_path / "ball.glb").read_bytes()
+    gltf = pygltflib.GLTF2.load_from_bytes(data)
+    (material,) = [m for m in gltf.materials if (m.extras or {}).get("sssbake")]
+    assert "screen" not in (gltf.meshes[0].extras.get("sssbake") or {})
+    tables = technique_tables(gltf, material, "screen")
+    expected = screen_samples(preset("marble"), options.screen())
+    assert (tables["technique"], tables["samples"], tables["uniform"], tables["driver"]) == (
+        "screen", 12, 4, expected.driver)
+    assert tables["tableReachMm"] == pytest.approx(expected.table_reach_mm, rel=1e-12)
+    for name, value in (("offsets", expected.offsets), ("weights", expected.weights), ("rdTable", expected.table.T)):
+        acc = gltf.accessors[material.extras["sssbake"]["screen"][name]["accessor"]]
+        assert acc.componentType == FLOAT and acc.bufferView is not None
+        np.testing.assert_array_equal(tables[name], value.astype(np.float32))
+    assert tables["offsets"].shape == (16, 2) and tables["rdTable"].shape[1] == 3
+    report = result.report["screen"]
+    (entry,) = report.values()
+    assert entry["samples"] == 12 and entry["tableSize"] == len(tables["rdTable"])
+    assert entry["bytes"]["total"] == 4 * (32 + 16 + 3 * len(tables["rdTable"]))
+    assert result.report["stages"]["screen"]["runs"] == 1
+    schema = json.loads(resources.files("sssbake.exporters").joinpath("schema/sssbake.schema.json").read_text())
+    sub = {"$schema": schema["$schema"], "$defs": schema["$defs"]}
+    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/material"}).validate(material.extras["sssbake"])
+    try:
+        checked = validate_glb(data)
+    except ValidatorUnavailable as exc:
+        pytest.skip(str(exc))
+    assert (checked.num_errors, checked.num_warnings) == (0, 0), checked.to_json()
+
+
+def test_material_extras_need_a_scattering_material():
+    asset = icosphere_asset()
+    with pytest.raises(ValueError, match=r"material_extras of materials \[1\]"):
+        to_glb(replace(asset, material_extras={1: {"screen": {"weights": np.ones(3)}}}))
+    with pytest.raises(ValueError, match=r"material_extras refers to materials \[7\]"):
+        to_glb(replace(asset, material_extras={7: {}}))

@@ -295,3 +295,24 @@ def test_spectral_normal_primvar_and_tables(tmp_path):
     read = technique_tables(prim, "spectral")
     for name, value in tables.items():
         np.testing.assert_array_equal(read[name], value)
+
+
+def test_screen_tables_are_attributes_of_the_material_prim(tmp_path):
+    from sssbake.exporters.usd import technique_tables
+    from sssbake.pipeline.screen_samples import screen_samples
+    from fixtures import bake_screen_sphere
+
+    _, options = bake_screen_sphere(tmp_path, screen_uniform=0)
+    stage = Usd.Stage.Open(str(tmp_path / "ball.usdc"))  # held: its prims die with it
+    (material,) = [p for p in stage.Traverse() if p.IsA(UsdShade.Material) and p.GetAttribute("sss:extras")]
+    expected = screen_samples(preset("marble"), options.screen())
+    for name, value in (("offsets", expected.offsets), ("weights", expected.weights), ("rdTable", expected.table.T)):
+        attribute = material.GetAttribute("sss:screen:" + name)
+        assert str(attribute.GetTypeName()) == "float[]"
+        assert list(attribute.GetCustomData()["shape"]) == list(value.shape)
+        np.testing.assert_array_equal(np.asarray(attribute.Get()).reshape(value.shape), value.astype(np.float32))
+    tables = technique_tables(material, "screen")
+    assert (tables["technique"], tables["samples"], tables["uniform"]) == ("screen", options.screen_samples, 0)
+    np.testing.assert_array_equal(tables["weights"], expected.weights.astype(np.float32))
+    assert tables["tableError"] == expected.table_error
+    assert material.GetAttribute("sss:materialName").Get() == "marble"

@@ -1,0 +1,54 @@
+"""How the screen technique's sample tables are laid out, and the stage that makes them."""
+
+import numpy as np
+import pytest
+
+from sssbake.pipeline.materials import preset
+from sssbake.pipeline.options import BakeOptions, check_options
+from sssbake.pipeline.screen_layout import TABLES, screen_bytes, screen_tables
+from sssbake.pipeline.screen_stage import bake_screen
+from sssbake.pipeline.screen_samples import ScreenOptions, screen_samples
+
+
+def test_tables_hold_the_samples_as_float32():
+    options = ScreenOptions(samples=10, uniform=3)
+    samples = screen_samples(preset("marble"), options)
+    tables = screen_tables(samples, options)
+    assert (tables["technique"], tables["samples"], tables["uniform"], tables["driver"]) == (
+        "screen", 10, 3, samples.driver)
+    assert tables["uniformRadiusMm"] == samples.uniform_radius_mm
+    assert tables["tableReachMm"] == samples.table_reach_mm and tables["tableError"] == samples.table_error
+    assert all(tables[name].dtype == np.float32 for name in TABLES)
+    assert tables["offsets"].shape == (13, 2) and tables["weights"].shape == (13,)
+    assert tables["rdTable"].shape == (samples.table.shape[1], 3)
+    np.testing.assert_array_equal(tables["offsets"], samples.offsets.astype(np.float32))
+    np.testing.assert_array_equal(tables["weights"], samples.weights.astype(np.float32))
+    np.testing.assert_array_equal(tables["rdTable"], samples.table.T.astype(np.float32))
+    assert screen_bytes(tables) == {"offsets": 104, "weights": 52, "rdTable": 12 * len(tables["rdTable"]),
+                                    "total": 156 + 12 * len(tables["rdTable"])}
+
+
+def test_stage_report():
+    options = ScreenOptions(samples=6, uniform=0, table_error=1e-2)
+    baked = bake_screen(preset("skin1"), options)
+    report = baked.report
+    assert report["options"] == options.__dict__ and (report["samples"], report["uniform"], report["offsets"]) == (
+        6, 0, 6)
+    assert report["tableSize"] == len(baked.tables["rdTable"]) and report["tableError"] <= 1e-2
+    assert report["bytes"] == screen_bytes(baked.tables)
+    assert {"driver", "uniformRadiusMm", "tableReachMm"} <= set(report)
+
+
+@pytest.mark.parametrize("field, value, needle", [
+    ("screen_samples", 0, "screen: samples must be"),
+    ("screen_uniform", -1, "screen: uniform must be"),
+    ("screen_table_error", 0.5, "screen: table_error must be"),
+])
+def test_bad_options_are_one_line(field, value, needle):
+    with pytest.raises(ValueError, match=needle) as err:
+        check_options(BakeOptions(techniques=("screen",), **{field: value}))
+    assert "\n" not in str(err.value)
+
+
+def test_options_default_to_the_precompute_defaults():
+    assert BakeOptions().screen() == ScreenOptions()
