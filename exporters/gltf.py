@@ -182,6 +182,27 @@ def technique_tables(gltf: g.GLTF2, mesh: g.Mesh | g.Material, technique: str,
             for k, v in tables.items()}
 
 
+def technique_primitives(gltf: g.GLTF2, technique: str, names, error: type, path, blob: bytes | None = None):
+    """Each mesh whose ``extras.sssbake`` has `technique`, as (mesh index, its `technique_tables`,
+    per primitive {attribute name: float64 values}) for the attributes ``names(tables)`` lists;
+    `error` (an exception class) names a primitive that lacks one."""
+    for i, mesh in enumerate(gltf.meshes):
+        tables = technique_tables(gltf, mesh, technique, blob)
+        if tables is None:
+            continue
+        wanted = names(tables)
+        per_primitive = []
+        for j, prim in enumerate(mesh.primitives):
+            values = {}
+            for name in wanted:
+                index = getattr(prim.attributes, name, None)
+                if index is None:
+                    raise error(f"{path}: mesh {i} primitive {j} lacks attribute {name}")
+                values[name] = dequantize(read_accessor(gltf, index, blob), bool(gltf.accessors[index].normalized))
+            per_primitive.append(values)
+        yield i, tables, per_primitive
+
+
 def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
     """Encode `asset` as GLB bytes.
 

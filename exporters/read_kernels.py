@@ -15,7 +15,7 @@ import pygltflib
 
 from ..pipeline.kernels_data import KernelsData
 from ..pipeline.kernels_layout import VERTEX_KEY, kernels_data_from_tables, vertex_ids_from_layout
-from .gltf import read_accessor, technique_tables
+from .gltf import technique_primitives
 
 
 class KernelsReadError(ValueError):
@@ -28,17 +28,11 @@ def read_kernels_glb(path: str | os.PathLike) -> dict[tuple[int, int], tuple[Ker
     gltf = pygltflib.GLTF2.load(str(path))
     blob = gltf.binary_blob()
     out = {}
-    for i, mesh in enumerate(gltf.meshes):
-        resolved = technique_tables(gltf, mesh, "kernels", blob)
-        if resolved is None:
-            continue
-        data = kernels_data_from_tables(resolved)
-        name = resolved["attributes"]["vertex"]
-        for j, prim in enumerate(mesh.primitives):
-            index = getattr(prim.attributes, name, None)
-            if index is None:
-                raise KernelsReadError(f"{path}: mesh {i} primitive {j} lacks attribute {name}")
-            out[(i, j)] = data, vertex_ids_from_layout(resolved, {name: read_accessor(gltf, index, blob)})
+    for i, tables, primitives in technique_primitives(gltf, "kernels", lambda t: [t["attributes"]["vertex"]],
+                                                      KernelsReadError, path, blob):
+        data = kernels_data_from_tables(tables)  # one atlas per mesh: its primitives share it
+        for j, per_vertex in enumerate(primitives):
+            out[(i, j)] = data, vertex_ids_from_layout(tables, per_vertex)
     if not out:
         raise KernelsReadError(f"{path}: no mesh holds kernels data (bake with --techniques kernels)")
     return out

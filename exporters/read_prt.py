@@ -13,7 +13,7 @@ import pygltflib
 
 from ..pipeline.prt_data import PrtData
 from ..pipeline.prt_layout import prt_from_layout
-from .gltf import dequantize, read_accessor, technique_tables
+from .gltf import technique_primitives
 
 PRIMVAR_PREFIX = "primvars:sss:prt:"
 
@@ -27,20 +27,9 @@ def read_prt_glb(path: str | os.PathLike) -> dict[tuple[int, int], PrtData]:
     primitive of a mesh whose ``extras.sssbake`` has ``prt``."""
     gltf = pygltflib.GLTF2.load(str(path))
     blob = gltf.binary_blob()
-    out = {}
-    for i, mesh in enumerate(gltf.meshes):
-        resolved = technique_tables(gltf, mesh, "prt", blob)
-        if resolved is None:
-            continue
-        names = _attribute_names(resolved)
-        for j, prim in enumerate(mesh.primitives):
-            per_vertex = {}
-            for name in names:
-                index = getattr(prim.attributes, name, None)
-                if index is None:
-                    raise PrtReadError(f"{path}: mesh {i} primitive {j} lacks attribute {name}")
-                per_vertex[name] = dequantize(read_accessor(gltf, index, blob), bool(gltf.accessors[index].normalized))
-            out[(i, j)] = prt_from_layout(resolved, per_vertex)
+    out = {(i, j): prt_from_layout(tables, per_vertex)
+           for i, tables, primitives in technique_primitives(gltf, "prt", _attribute_names, PrtReadError, path, blob)
+           for j, per_vertex in enumerate(primitives)}
     if not out:
         raise PrtReadError(f"{path}: no mesh holds prt data (bake with --techniques prt)")
     return out
