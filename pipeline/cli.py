@@ -129,6 +129,11 @@ def _tradeoff(args) -> int:
             from .spectral_tradeoff import spectral_tradeoff
 
             result = spectral_tradeoff(path, scale, material, out, lights=args.lights, size=args.size)
+        elif args.technique == "screen":
+            from .screen_tradeoff import screen_tradeoff
+
+            result = screen_tradeoff(path, scale, material, out, samples=args.samples, uniform=args.uniform,
+                                     lights=args.lights, size=args.size)
         else:
             from .kernels_tradeoff import kernels_tradeoff
 
@@ -148,11 +153,15 @@ def _tradeoff(args) -> int:
             elif args.technique == "spectral":
                 knobs = (f"{r['normals']:>8} m={r['eigenpairs']:<4} width x{r['width_factor']:<5g} "
                          f"alpha={r['alpha']:<4g}")
+            elif args.technique == "screen":
+                knobs = (f"N={r['samples']:<4} U={r['uniform']:<3} jacobian={r['jacobian']!s:<5} fill={r['fill']!s:<5} "
+                         f"interleave={r['interleave']:<2} {r['frame_ms']:8.2f} ms/frame")
             else:
                 knobs = (f"atlas={r['atlas_resolution']:<5} k={r['kernel_size']:<2} threshold={r['threshold']:<6g} "
                          f"{r['blend']:<9} seams={r['seams']:<6}")
-            print(f"{r['sweep']:>16} {knobs} {r['bytes_per_vertex']:9.1f} B/vertex {r['seconds']:7.2f} s  "
-                  f"RMSE {r['rmse_image']:.5f}")
+            # screen stores nothing per vertex: its tables are per material
+            size = f"{r['bytes']:7d} B/material" if args.technique == "screen" else f"{r['bytes_per_vertex']:9.1f} B/vertex"
+            print(f"{r['sweep']:>16} {knobs} {size} {r['seconds']:7.2f} s  RMSE {r['rmse_image']:.5f}")
         print(f"frame {result['frame_ms_sss']:.2f} ms with {args.technique}, {result['frame_ms_plain']:.2f} ms without "
               f"(ratio {result['frame_ratio']:.2f}); {result['outputs']['plot']}")
     return 0
@@ -290,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("verify", help="render an export with the shipped GLSL and the offline reference; image RMSE")
     v.add_argument("file", help="a .glb written by sssbake bake")
-    v.add_argument("--technique", default="prt", choices=["prt", "kernels", "spectral"])
+    v.add_argument("--technique", default="prt", choices=["prt", "kernels", "spectral", "screen"])
     v.add_argument("--light-dir", help="x,y,z world direction towards a directional light (default 0.4,0.8,0.45)")
     v.add_argument("--light-pos", help="x,y,z world position of a point light instead (unit irradiance at the "
                                        "objects' centre)")
@@ -303,12 +312,13 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=_verify)
 
-    # kernels_tradeoff's defaults, for the help; the sweeps themselves run only on `tradeoff`
+    # the kernels and screen tradeoffs' defaults, for the help; the sweeps run only on `tradeoff`
     from .kernels_tradeoff import DEFAULT_RESOLUTION, RESOLUTIONS, SIZES, THRESHOLDS
+    from .screen_tradeoff import SAMPLES, UNIFORM
 
     t = sub.add_parser("tradeoff", help="sweep a technique's knobs: image RMSE vs bytes per vertex and seconds")
     t.add_argument("input", help="a mesh file (the largest mesh is used)")
-    t.add_argument("--technique", default="prt", choices=["prt", "kernels", "spectral"])
+    t.add_argument("--technique", default="prt", choices=["prt", "kernels", "spectral", "screen"])
     t.add_argument("--material", default=BAKE_DEFAULTS.material, help="preset name (default marble)")
     t.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
     t.add_argument("--k", type=int, default=BAKE_DEFAULTS.prt_directions,
@@ -321,6 +331,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"kernels: kernel sizes swept (default {','.join(map(str, SIZES))})")
     t.add_argument("--thresholds", type=_numbers(float), default=THRESHOLDS,
                    help=f"kernels: F thresholds swept (default {','.join(map(str, THRESHOLDS))})")
+    t.add_argument("--samples", type=_numbers(int), default=SAMPLES,
+                   help=f"screen: importance samples N swept (default {','.join(map(str, SAMPLES))})")
+    t.add_argument("--uniform", type=_numbers(int), default=UNIFORM,
+                   help=f"screen: uniform samples U swept (default {','.join(map(str, UNIFORM))})")
     t.add_argument("--lights", type=int, default=3, help="random test lights; the worst RMSE counts (default 3)")
     t.add_argument("--size", type=int, default=256, help="image size (default 256)")
     t.add_argument("--out", help="folder for the JSON, CSV and plot (default: next to the input)")

@@ -5,7 +5,7 @@ shaders stay GLSL 3.30 and ES 3.00); `render` adds the final draw (``kernels_sur
 
 Passes, each into a float texture:
 
-1. shadow map: depth from the light (``plain.vert``, ``kernels_depth.frag``);
+1. shadow map: depth from the light (``plain.vert``, ``depth_only.frag``);
 2. illumination map E, W × H R32F: border texels as one-pixel points, then the mesh triangles at
    their atlas UVs (``kernels_atlas.vert``, ``kernels_illumination.frag``);
 3. local response, W × H RGBA32F: ``kernels_filter.frag`` (rgb B_l, alpha coverage);
@@ -25,12 +25,8 @@ from __future__ import annotations
 import numpy as np
 
 from .kernels_data import KernelsData
+from .gl_passes import SHADOW_OFFSET_TEXELS, Pass, gl_matrix, read_texture, shadow_texture
 from .prt_runtime import table_texture
-
-#: How far a shadow lookup moves off the surface, in shadow-map texels (along n and towards the
-#: light): enough against self-shadowing of lit surfaces at 1-texel depth quantisation.
-SHADOW_OFFSET_TEXELS = 1.5
-
 
 class KernelsPasses:
     """One kernels item's GL objects and passes 1-4.
@@ -86,7 +82,7 @@ class KernelsPasses:
             self.release()
             raise
 
-    def _response(self, program, table_width: int) -> list[_Pass]:
+    def _response(self, program, table_width: int) -> list[Pass]:
         """Steps 2-4: their tables and passes."""
         import moderngl
 
@@ -118,23 +114,23 @@ class KernelsPasses:
         f_values = table("F", data.f_values.astype(np.float32), "f4")
         f_rows = table("vertices", _rows(np.diff(data.f_indptr), f_entries.width), "i4", self.vertex_width)
 
-        local = program("kernels_screen.vert", "kernels_filter.frag")
-        gather = program("kernels_screen.vert", "kernels_gather.frag")
+        local = program("fullscreen.vert", "kernels_filter.frag")
+        gather = program("fullscreen.vert", "kernels_gather.frag")
         screen = self._keep(ctx.vertex_array(local, []))
         gather_screen = self._keep(ctx.vertex_array(gather, []))
         return [
-            _Pass(local, screen, self._target(self.local),
+            Pass(local, screen, self._target(self.local),
                   {"u_illumination": self.illumination, "u_texel_kernel": texel_kernel, "u_kernels": kernels},
                   {"u_kernel_radius": data.radius}, 3),
-            _Pass(gather, gather_screen, self._target(self.direct),
+            Pass(gather, gather_screen, self._target(self.direct),
                   {"u_rows": corner_rows, "u_entries": corner_entries, "u_weights": corner_weights,
                    "u_source": self.illumination}, {"u_channel": 0}, 3),
-            _Pass(gather, gather_screen, self._target(self.global_),
+            Pass(gather, gather_screen, self._target(self.global_),
                   {"u_rows": f_rows, "u_entries": f_entries, "u_weights": f_values, "u_source": self.direct},
                   {"u_channel": 3}, 3),
         ]
 
-    def _lighting(self, program, item, light, light_view_projection, shadow_extent, shadow_size) -> list[_Pass]:
+    def _lighting(self, program, item, light, light_view_projection, shadow_extent, shadow_size) -> list[Pass]:
         """Steps 1 (shadow map, then E): geometry and passes."""
         import moderngl
 
@@ -161,25 +157,23 @@ class KernelsPasses:
             content = [(buf, fmt, name) for buf, (_, fmt, name) in zip(buffers, arrays) if name in prog]
             return self._keep(ctx.vertex_array(prog, content, index_buffer=indices, index_element_size=4))
 
-        shadow_map = self._keep(ctx.depth_texture((shadow_size, shadow_size)))
-        shadow_map.compare_func = ""  # read depths and compare in the shader
-        shadow_map.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        shadow_map = self._keep(shadow_texture(ctx, shadow_size))
         model = np.asarray(item["model"], dtype=np.float64)
-        transforms = {"u_model": _mat(model), "u_normal_matrix": _mat(np.linalg.inv(model[:3, :3]).T),
-                      "u_view_projection": _mat(light_view_projection)}
+        transforms = {"u_model": gl_matrix(model), "u_normal_matrix": gl_matrix(np.linalg.inv(model[:3, :3]).T),
+                      "u_view_projection": gl_matrix(light_view_projection)}
         lighting = {**transforms, "u_eta": float(item["eta"]), "u_point_light": int(light.point),
                     "u_light": tuple(map(float, light.vector)), "u_intensity": float(light.intensity),
-                    "u_mm_per_unit": float(light.mm_per_unit), "u_light_view_projection": _mat(light_view_projection),
+                    "u_mm_per_unit": float(light.mm_per_unit), "u_light_view_projection": gl_matrix(light_view_projection),
                     "u_shadow_offset": SHADOW_OFFSET_TEXELS * shadow_extent / shadow_size}
-        shadow = program("plain.vert", "kernels_depth.frag")
+        shadow = program("plain.vert", "depth_only.frag")
         lit = program("kernels_atlas.vert", "kernels_illumination.frag")
         lit_vao, lit_target = vao(lit), self._target(self.illumination)
         return [
-            _Pass(shadow, vao(shadow), self._keep(ctx.framebuffer(depth_attachment=shadow_map)), {}, transforms,
+            Pass(shadow, vao(shadow), self._keep(ctx.framebuffer(depth_attachment=shadow_map)), {}, transforms,
                   triangles, points, clear=True),
-            _Pass(lit, lit_vao, lit_target, {"u_shadow": shadow_map}, lighting, points, clear=True,
+            Pass(lit, lit_vao, lit_target, {"u_shadow": shadow_map}, lighting, points, clear=True,
                   mode=moderngl.POINTS),
-            _Pass(lit, lit_vao, lit_target, {"u_shadow": shadow_map}, lighting, triangles, points),
+            Pass(lit, lit_vao, lit_target, {"u_shadow": shadow_map}, lighting, triangles, points),
         ]
 
     @property
@@ -233,10 +227,10 @@ class KernelsPasses:
             ``texels``; ``e_g`` (n,); ``b_d`` (n, 3); ``b_g`` (n, 3).
         """
         d = self.data
-        e = _read(self.illumination, 1).reshape(d.height, d.width)
-        direct = _read(self.direct, 4)[: d.vertex_count]
-        return {"illumination": e, "local": _read(self.local, 4)[d.texels, :3], "e_g": direct[:, 3],
-                "b_d": direct[:, :3], "b_g": _read(self.global_, 4)[: d.vertex_count, :3]}
+        e = read_texture(self.illumination, 1).reshape(d.height, d.width)
+        direct = read_texture(self.direct, 4)[: d.vertex_count]
+        return {"illumination": e, "local": read_texture(self.local, 4)[d.texels, :3], "e_g": direct[:, 3],
+                "b_d": direct[:, :3], "b_g": read_texture(self.global_, 4)[: d.vertex_count, :3]}
 
     def release(self) -> None:
         for o in reversed(self._objects):
@@ -249,32 +243,6 @@ class KernelsPasses:
 
     def _target(self, texture):
         return self._keep(self.ctx.framebuffer(color_attachments=[texture]))
-
-
-class _Pass:
-    """One draw (`vertices` indices from `first`) into a framebuffer with its samplers and
-    uniforms, set again every run (passes of several items share the renderer's programs)."""
-
-    def __init__(self, program, vao, framebuffer, samplers: dict, uniforms: dict, vertices: int, first: int = 0,
-                 clear: bool = False, mode: int | None = None):
-        import moderngl
-
-        self.program, self.vao, self.framebuffer = program, vao, framebuffer
-        self.samplers = [(name, tex) for name, tex in samplers.items() if name in program]
-        self.uniforms = {name: value for name, value in uniforms.items() if name in program}
-        self.vertices, self.first, self.clear = vertices, first, clear
-        self.mode = moderngl.TRIANGLES if mode is None else mode
-
-    def run(self) -> None:
-        self.framebuffer.use()
-        if self.clear:
-            self.framebuffer.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        for unit, (name, tex) in enumerate(self.samplers):
-            tex.use(unit)
-            self.program[name].value = unit
-        for name, value in self.uniforms.items():
-            self.program[name].value = value
-        self.vao.render(self.mode, vertices=self.vertices, first=self.first)
 
 
 def _texels(index: np.ndarray, width: int) -> np.ndarray:
@@ -290,13 +258,3 @@ def _rows(counts: np.ndarray, width: int) -> np.ndarray:
     rows[:, :2] = _texels(np.cumsum(counts) - counts, width)
     rows[:, 2] = counts
     return rows
-
-
-def _read(texture, components: int) -> np.ndarray:
-    """(texels, components) float32 contents of a float texture, row by row from row 0."""
-    return np.frombuffer(texture.read(), np.float32).reshape(-1, components).copy()
-
-
-def _mat(matrix: np.ndarray) -> tuple:
-    """A row-major matrix as a GLSL (column-major) uniform value."""
-    return tuple(np.asarray(matrix, dtype=np.float64).T.reshape(-1))

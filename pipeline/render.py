@@ -1,6 +1,6 @@
 """The reference runtime: renders meshes with the shipped GLSL, headless (moderngl on EGL).
 
-Four kinds of draw, told apart by the keys of an item (see `Renderer.render`):
+Five kinds of draw, told apart by the keys of an item (see `Renderer.render`):
 
 - ``prt``: ``prt.vert`` decodes the exported prt data on the GPU per vertex;
 - ``q``: ``vertex_q.vert`` takes scattered radiance computed per vertex elsewhere (the offline
@@ -8,6 +8,9 @@ Four kinds of draw, told apart by the keys of an item (see `Renderer.render`):
 - ``kernels``: the kernels technique, whose offscreen passes (`kernels_runtime`: shadow map,
   illumination map, local filter, distribution and global response) run every frame before
   ``kernels_surface.vert``/``.frag`` draw q = B_l(uv) + B_g + B_d;
+- ``screen``: the screen technique, whose offscreen passes (`screen_runtime`: shadow map,
+  G-buffer from the camera, gather) run every frame before ``screen_surface.frag`` reads B per
+  pixel;
 - ``albedo``: ``plain.vert``/``plain.frag``, Lambert plus specular without scattering (the
   baseline of frame times).
 
@@ -25,13 +28,16 @@ import numpy as np
 from .kernels_data import KernelsData
 from .kernels_runtime import KernelsPasses
 from .prt_data import PrtData
+from .screen_data import ScreenSamples
+from .screen_runtime import ScreenPasses, ScreenRuntimeOptions
 from .prt_runtime import TABLE_WIDTH, per_vertex_arrays, shader_defines, upload
 from .sh import MAX_ORDER as SH_MAX_ORDER
 from .shaders import DIALECTS, shader_source
 
 #: Vertex and fragment stage of each kind of draw.
 PROGRAMS = {"prt": ("prt.vert", "sss_surface.frag"), "q": ("vertex_q.vert", "sss_surface.frag"),
-            "kernels": ("kernels_surface.vert", "kernels_surface.frag"), "albedo": ("plain.vert", "plain.frag")}
+            "kernels": ("kernels_surface.vert", "kernels_surface.frag"), "screen": ("plain.vert", "screen_surface.frag"),
+            "albedo": ("plain.vert", "plain.frag")}
 #: Largest tan(half field of view) of a point light's shadow map (80°): a light inside or at the
 #: item's bounding sphere sees only this cone, points outside it count as lit.
 MAX_SHADOW_TAN = float(np.tan(np.radians(80.0)))
@@ -233,7 +239,10 @@ class Renderer:
             q per unit irradiance), ``q`` (n, 3) scattered radiance per vertex (irradiance
             included), ``albedo`` (3,) for the plain shader, ``kernels`` (`KernelsData`) with
             ``uvs`` (n, 2) atlas UVs (glTF convention) and ``vertex_ids`` (n,) int, the welded
-            surface vertex of each render vertex (its shadow map holds the item's own triangles).
+            surface vertex of each render vertex (its shadow map holds the item's own triangles),
+            ``screen`` (`ScreenSamples`) with ``mm_per_unit`` (mm per object unit) and optionally
+            ``screen_runtime`` (`ScreenRuntimeOptions`); its G-buffer and shadow map hold the
+            item alone.
         specular : float
             Weight of the surface's specular reflection (Fresnel reflectance 1 - F_t times a
             normalised Blinn-Phong lobe of exponent `shininess`).
@@ -267,9 +276,9 @@ class Renderer:
     def frame_ms(self, items, camera: Camera, light: RenderLight, frames: int = 20, specular: float = 0.0) -> float:
         """Median milliseconds per frame of drawing `items` (see `render`).
 
-        Data is uploaded once; each frame clears, runs each kernels draw's offscreen passes, binds
-        each draw's textures and uniforms, draws and waits for the GPU (``ctx.finish``). Two
-        warm-up frames are not counted.
+        Data is uploaded once; each frame clears, runs each kernels and screen draw's offscreen
+        passes, binds each draw's textures and uniforms, draws and waits for the GPU
+        (``ctx.finish``). Two warm-up frames are not counted.
         """
         import moderngl
 
@@ -318,6 +327,32 @@ class Renderer:
         finally:
             passes.release()
 
+    def screen_passes(self, item: dict, camera: Camera, light: RenderLight,
+                      irradiance: np.ndarray | None = None) -> dict:
+        """Run the offscreen passes of a screen item once and read their results back.
+
+        Parameters
+        ----------
+        item : dict
+            A render item with ``screen`` (see `render`).
+        irradiance : (H, W) float, optional
+            E to gather instead of the one the G-buffer pass lights (row 0 at the top).
+
+        Returns
+        -------
+        dict
+            (H, W, ...) row 0 at the top: ``position``, ``irradiance``, ``normal``, ``covered``,
+            ``scattered`` (B), ``share`` (`ScreenPasses.read`).
+        """
+        if _check_item(0, item) != "screen":
+            raise ValueError("render: screen_passes needs an item with screen")
+        passes = self._screen_passes(item, camera, light)
+        try:
+            passes.run(irradiance)
+            return passes.read()
+        finally:
+            passes.release()
+
     def release(self) -> None:
         """Free the GL context (the renderer is unusable afterwards)."""
         self.ctx.release()
@@ -335,6 +370,13 @@ class Renderer:
         view_projection, extent = light_camera(world, light)
         return KernelsPasses(self.ctx, self._program, item, light, view_projection, extent, self.fbo,
                              self.table_width, self.shadow_size)
+
+    def _screen_passes(self, item: dict, camera: Camera, light: RenderLight) -> ScreenPasses:
+        model = np.asarray(item["model"], dtype=np.float64)
+        world = np.asarray(item["positions"], dtype=np.float64) @ model[:3, :3].T + model[:3, 3]
+        view_projection, extent = light_camera(world, light)
+        return ScreenPasses(self.ctx, self._program, item, light, view_projection, extent, camera, self.size,
+                            self.fbo, self.shadow_size)
 
     def _prepare(self, items, camera, light, specular, shininess, diffuse) -> list[_Draw]:
         if not len(items):
@@ -360,10 +402,13 @@ class Renderer:
             textures = upload(self.ctx, program, item["prt"], width=self.table_width)
         elif kind == "q":
             extra = [(np.asarray(item["q"], np.float32), "3f", "in_q")]
-        elif kind == "kernels":
-            passes = self._kernels_passes(item, light)
-            extra = [(np.asarray(item["uvs"], np.float32), "2f", "in_uv"),
-                     *passes.surface_attributes(item["vertex_ids"])]
+        elif kind in ("kernels", "screen"):
+            if kind == "kernels":
+                passes = self._kernels_passes(item, light)
+                extra = [(np.asarray(item["uvs"], np.float32), "2f", "in_uv"),
+                         *passes.surface_attributes(item["vertex_ids"])]
+            else:
+                passes = self._screen_passes(item, camera, light)
             for unit, (name, texture) in enumerate(passes.surface_textures.items()):
                 if name in program:
                     program[name].value = unit
@@ -401,9 +446,9 @@ class Renderer:
 class _Draw:
     """One item ready to draw: its vertex array, textures and the uniform values it was set up with
     (several items may share a program, so each draw restores its own), and the offscreen passes
-    to run first (kernels: `KernelsPasses`, which bind the target framebuffer again)."""
+    to run first (`KernelsPasses`, `ScreenPasses`: they bind the target framebuffer again)."""
 
-    def __init__(self, program, vao, textures, buffers, passes: KernelsPasses | None = None):
+    def __init__(self, program, vao, textures, buffers, passes: KernelsPasses | ScreenPasses | None = None):
         import moderngl
 
         self.program, self.vao, self.textures, self.buffers, self.passes = program, vao, textures, buffers, passes
@@ -422,7 +467,7 @@ class _Draw:
         self.vao.render(moderngl.TRIANGLES)
 
     def release(self) -> None:
-        owned = self.textures if self.passes is None else [self.passes]  # the passes own the kernels textures
+        owned = self.textures if self.passes is None else [self.passes]  # the passes own their textures
         for o in [self.vao, *owned, *self.buffers]:
             o.release()
 
@@ -453,7 +498,24 @@ def _check_item(i: int, item: dict) -> str:
         raise ValueError(f"render: item {i}: prt must be PrtData over the item's {n} vertices, SH order <= {SH_MAX_ORDER}")
     if kinds[0] == "kernels":
         _check_kernels(i, item, n)
+    if kinds[0] == "screen":
+        _check_screen(i, item)
     return kinds[0]
+
+
+def _check_screen(i: int, item: dict) -> None:
+    """The sample tables, scale and runtime options of screen item `i`."""
+    if not isinstance(item["screen"], ScreenSamples):
+        raise ValueError(f"render: item {i}: screen must be ScreenSamples, got {type(item['screen']).__name__}")
+    try:
+        item["screen"].check()
+    except ValueError as error:
+        raise ValueError(f"render: item {i}: {error}") from None
+    mm = item.get("mm_per_unit")
+    if not isinstance(mm, (int, float)) or not (np.isfinite(mm) and mm > 0):
+        raise ValueError(f"render: item {i}: a screen item needs mm_per_unit > 0 (mm per object unit), got {mm!r}")
+    if not isinstance(item.get("screen_runtime", ScreenRuntimeOptions()), ScreenRuntimeOptions):
+        raise ValueError(f"render: item {i}: screen_runtime must be ScreenRuntimeOptions")
 
 
 def _check_kernels(i: int, item: dict, n: int) -> None:

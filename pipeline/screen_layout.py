@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .screen_samples import ScreenOptions, ScreenSamples
+from .screen_data import ScreenSamples
+from .screen_samples import ScreenOptions
 
 #: The float32 tables of the block, in file order.
 TABLES = ("offsets", "weights", "rdTable")
@@ -56,3 +57,19 @@ def screen_bytes(tables: dict) -> dict:
     out = {name: int(tables[name].nbytes) for name in TABLES}
     out["total"] = sum(out.values())
     return out
+
+
+def screen_samples_from_tables(tables: dict) -> ScreenSamples:
+    """The inverse of `screen_tables`: `ScreenSamples` (float64) from a block's parameters and its
+    tables as read back (float32), checked."""
+    try:
+        samples = ScreenSamples(
+            offsets=np.asarray(tables["offsets"], dtype=np.float64).reshape(-1, 2),
+            weights=np.asarray(tables["weights"], dtype=np.float64).reshape(-1),
+            driver=int(tables["driver"]), uniform_radius_mm=float(tables["uniformRadiusMm"]),
+            table=np.ascontiguousarray(np.asarray(tables["rdTable"], dtype=np.float64).reshape(-1, 3).T),
+            table_reach_mm=float(tables["tableReachMm"]), table_error=float(tables["tableError"]))
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"screen: malformed screen block ({error})") from None
+    samples.check()
+    return samples

@@ -29,6 +29,7 @@ import numpy as np
 from .dipole import DipoleParams, diffuse_reflectance_profile, total_diffuse_reflectance
 from .dipole_sampling import radius_cdf, sample_radii
 from .materials import Material
+from .screen_data import ScreenSamples
 
 #: The uniform disc holds this share of the driving channel's R_d.
 UNIFORM_SHARE = 0.5
@@ -68,33 +69,6 @@ class ScreenOptions:
 
 
 SCREEN_DEFAULTS = ScreenOptions()
-
-
-@dataclass(frozen=True, eq=False)
-class ScreenSamples:
-    """Attributes
-    ----------
-    offsets : (N + U, 2) float64
-        Tangent-plane offsets, mm: the importance samples of red, green, blue, then the uniform ones.
-    weights : (N + U,) float64
-        w_i, mm².
-    driver : int
-        The channel that spreads furthest (it sets the uniform disc).
-    uniform_radius_mm : float
-    table : (3, T) float64
-        Rd (1/mm²) per channel at r = table_reach_mm · (i / (T - 1))².
-    table_reach_mm : float
-    table_error : float
-        The table's largest relative interpolation error, measured.
-    """
-
-    offsets: np.ndarray
-    weights: np.ndarray
-    driver: int
-    uniform_radius_mm: float
-    table: np.ndarray
-    table_reach_mm: float
-    table_error: float
 
 
 def screen_samples(material: Material, options: ScreenOptions = SCREEN_DEFAULTS) -> ScreenSamples:

@@ -25,6 +25,7 @@ import pygltflib
 
 from ..exporters.read_kernels import read_kernels_glb
 from ..exporters.read_prt import read_prt_glb
+from ..exporters.read_screen import read_screen_glb
 from ..exporters.read_spectral import read_spectral_glb
 from .clean import WELD_TOLERANCE, Surface, area_weighted_normals, weld_surface
 from .load import load_scene
@@ -35,12 +36,18 @@ from .reference import Light, reference_scattering
 from .spectral_precompute import SPECTRAL_DEFAULTS, naive_parameters
 from .visibility import direction_visibility, point_visibility
 
-TECHNIQUES = ("prt", "kernels", "spectral")
-READERS = {"prt": read_prt_glb, "kernels": read_kernels_glb, "spectral": read_spectral_glb}
+TECHNIQUES = ("prt", "kernels", "spectral", "screen")
+READERS = {"prt": read_prt_glb, "kernels": read_kernels_glb, "spectral": read_spectral_glb,
+           "screen": read_screen_glb}
 #: A technique's bytes per vertex from its block of the bake report (spectral: the normal per
-#: render vertex plus the optional re-filtering tables per vertex).
+#: render vertex plus the optional re-filtering tables per vertex; screen: nothing per vertex, its
+#: tables are per material).
 BYTES_PER_VERTEX = {"prt": lambda r: r["bytesPerVertex"]["total"], "kernels": lambda r: r["bytes"]["perVertex"],
-                    "spectral": lambda r: r["bytes"]["perVertex"] + r["bytes"]["normalPerRenderVertex"]}
+                    "spectral": lambda r: r["bytes"]["perVertex"] + r["bytes"]["normalPerRenderVertex"],
+                    "screen": lambda r: 0.0}
+#: A screen pixel whose gather found less than this share of Rd's integral on the surface counts
+#: as missing surface (silhouettes, occluders, the image's edge).
+LOW_SHARE = 0.9
 REFERENCES = ("exact", "clustered")
 DEFAULT_LIGHT = (0.4, 0.8, 0.45)
 #: Colour of the plain shader that frame times are compared with (its cost does not depend on it).
@@ -78,7 +85,9 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         also ``spectral_scale`` (the fit applied to its image), ``rmse_object_naive`` and
         ``naive_scale`` (Patro's naive normals, computed here from the file's geometry and
         material with the precompute's defaults). Spectral's ``frame_ms_sss`` is the plain
-        shader's with the subsurface normals.
+        shader's with the subsurface normals. Screen also reports where screen space misses light
+        (`screen_misses`): ``low_share_pixels``, ``missed_share``, ``missed_share_unlit``,
+        ``missed_share_low_share``, ``bytes_per_material``.
     """
     from .image_metrics import (best_fit_scale, rmse, shared_exposure, write_comparison_png,
                                 write_difference_png)
@@ -102,7 +111,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     instances = []
     for mi, worlds in sorted(scene.mesh_instances().items()):
         held = [pi for pi in range(len(scene.meshes[mi].primitives)) if (mi, pi) in data]
-        units = [[pi] for pi in held] if technique == "prt" else ([held] if held else [])
+        # prt and screen draw a primitive each (screen: its material's tables); the others a mesh
+        units = [[pi] for pi in held] if technique in ("prt", "screen") else ([held] if held else [])
         instances += [(mi, unit, world) for unit in units for world in worlds]
     if not instances:
         raise ValueError(f"verify: {path} has no drawable primitive with {technique} data")
@@ -156,6 +166,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         base = dict(positions=prim.positions, normals=normals, faces=prim.faces, model=world, eta=material.eta)
         if technique == "prt":
             sss_items.append({**base, "prt": data[(mi, unit[0])]})
+        elif technique == "screen":
+            sss_items.append({**base, "screen": data[(mi, unit[0])], "mm_per_unit": mm})
         elif technique == "kernels":
             kernels = data[(mi, unit[0])][0]
             sss_items.append({**base, "kernels": kernels, "uvs": prim.uvs[-1],
@@ -196,6 +208,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         shown = [reference, image, lambert, naive]
         extra = {"spectral_scale": spectral_scale.tolist(), "naive_scale": naive_scale.tolist(),
                  "rmse_object_naive": rmse(naive, reference, exposure, ref_mask)}
+    elif technique == "screen":
+        extra = screen_misses(renderer, sss_items, camera, light, image, reference, ref_mask | mask, shown[2] > 0)
 
     out_dir = Path(out_dir) if out_dir is not None else path.parent
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -229,6 +243,47 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         "pngs": pngs,
         **extra,
     }
+
+
+def screen_misses(renderer, items: list[dict], camera, light, image: np.ndarray, reference: np.ndarray,
+                  mask: np.ndarray, lit: np.ndarray) -> dict:
+    """Where the screen technique's image lacks the reference's light, and why.
+
+    Parameters
+    ----------
+    items : list of dict
+        The screen render items.
+    image, reference : (H, W, 3) float32
+    mask : (H, W) bool
+        The object's pixels.
+    lit : (H, W, 3) or (H, W) bool
+        Pixels the light reaches directly (the Lambert image's non-zero pixels).
+
+    Returns
+    -------
+    dict
+        ``low_share_pixels``: share of the object's pixels whose gather found under `LOW_SHARE`
+        of Rd's integral on the surface (the smallest over the items covering it);
+        ``missed_share``: Σ max(reference - image, 0) / Σ reference over the object's pixels
+        (all channels); ``missed_share_unlit``, ``missed_share_low_share``: the parts of it at
+        pixels the light does not reach directly (light that came through the object from
+        surfaces the camera cannot see) and at low-share pixels; ``bytes_per_material``: the
+        tables' float32 bytes of the first item.
+    """
+    share = np.ones(image.shape[:2])
+    for item in items:
+        passes = renderer.screen_passes(item, camera, light)
+        share = np.where(passes["covered"], np.minimum(share, passes["share"]), share)
+    lit = lit.any(axis=-1) if lit.ndim == 3 else lit
+    low = mask & (share < LOW_SHARE)
+    missing = np.maximum(reference - image, 0.0).sum(axis=-1)
+    total = max(float(reference[mask].sum()), 1e-300)
+    samples = items[0]["screen"]
+    return {"low_share_pixels": float(low.sum() / max(mask.sum(), 1)),
+            "missed_share": float(missing[mask].sum() / total),
+            "missed_share_unlit": float(missing[mask & ~lit].sum() / total),
+            "missed_share_low_share": float(missing[low].sum() / total),
+            "bytes_per_material": int(4 * (samples.offsets.size + samples.weights.size + samples.table.size))}
 
 
 def default_naive_normals(surface: Surface, mm_per_unit: float, material: Material) -> np.ndarray:

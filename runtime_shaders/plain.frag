@@ -19,7 +19,5 @@ void main() {
     vec3 v = sss_normalize(u_eye - v_position);
     float irradiance;
     vec3 l = sss_light(u_point_light, u_light, u_intensity, u_mm_per_unit, v_position, irradiance);
-    vec3 radiance = irradiance * (u_diffuse * surface_diffuse(n, l) +
-                                  u_specular * surface_specular(n, v, l, u_eta, u_shininess));
-    f_color = vec4(radiance, 1.0);
+    f_color = vec4(surface_reflection(n, v, l, irradiance, u_eta, u_specular, u_shininess, u_diffuse), 1.0);
 }

@@ -39,6 +39,13 @@ float surface_diffuse(vec3 n, vec3 l) {
     return max(dot(n, l), 0.0) / SSS_PI;
 }
 
+// The surface's own reflection in the final passes: the specular lobe
+// (weight `specular`) plus a Lambertian term of albedo `diffuse`, times the irradiance.
+vec3 surface_reflection(vec3 n, vec3 v, vec3 l, float irradiance, float eta, float specular, float shininess,
+                        vec3 diffuse) {
+    return irradiance * (specular * surface_specular(n, v, l, eta, shininess) + diffuse * surface_diffuse(n, l));
+}
+
 // Unit direction towards the light and the irradiance it delivers (normal incidence) at world
 // point p. Directional (point == 0): `light` is the unit direction towards it. Point: its world
 // position, irradiance falling as intensity / d^2 with d in mm (d >= 1 um: a light on the surface

@@ -19,7 +19,6 @@ void main() {
     vec3 v = sss_normalize(u_eye - v_position);
     vec3 l = sss_normalize(v_light);
     vec3 radiance = v_q * fresnel_transmittance(u_eta, dot(n, v));
-    radiance += v_irradiance * (u_specular * surface_specular(n, v, l, u_eta, u_shininess) +
-                                u_diffuse * surface_diffuse(n, l));
+    radiance += surface_reflection(n, v, l, v_irradiance, u_eta, u_specular, u_shininess, u_diffuse);
     f_color = vec4(radiance, 1.0);
 }

@@ -75,7 +75,8 @@ def assert_tradeoff_written(result: dict, json_name: str) -> None:
 
 
 def bake_screen_sphere(folder: Path, **overrides):
-    """Bake a small generated icosphere (marble, 1 mm per unit) with the screen technique alone.
+    """Bake a small generated icosphere (radius 5 units; marble, 1 mm per unit unless `overrides`
+    say otherwise) with the screen technique alone.
 
     Returns the `BakeResult` and the `BakeOptions` it was baked with.
     """
@@ -88,6 +89,6 @@ def bake_screen_sphere(folder: Path, **overrides):
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     trimesh.creation.icosphere(subdivisions=2, radius=5.0).export(folder / "ball.obj")
-    options = BakeOptions(material="marble", scale_mm=1.0, atlas_resolution=64, techniques=("screen",),
-                          validate=False, **overrides)
+    options = BakeOptions(**{"material": "marble", "scale_mm": 1.0, "atlas_resolution": 64, "techniques": ("screen",),
+                             "validate": False, **overrides})
     return bake_asset(folder / "ball.obj", options, folder / "ball", StageCache(None)), options

@@ -5,7 +5,7 @@ import pytest
 
 from sssbake.pipeline.materials import preset
 from sssbake.pipeline.options import BakeOptions, check_options
-from sssbake.pipeline.screen_layout import TABLES, screen_bytes, screen_tables
+from sssbake.pipeline.screen_layout import TABLES, screen_bytes, screen_samples_from_tables, screen_tables
 from sssbake.pipeline.screen_stage import bake_screen
 from sssbake.pipeline.screen_samples import ScreenOptions, screen_samples
 
@@ -52,3 +52,26 @@ def test_bad_options_are_one_line(field, value, needle):
 
 def test_options_default_to_the_precompute_defaults():
     assert BakeOptions().screen() == ScreenOptions()
+
+
+def test_samples_come_back_from_their_tables():
+    options = ScreenOptions(samples=7, uniform=2)
+    samples = screen_samples(preset("ketchup"), options)
+    back = screen_samples_from_tables(screen_tables(samples, options))
+    for name in ("offsets", "weights", "table"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(samples, name).astype(np.float32))
+    assert (back.driver, back.uniform_radius_mm, back.table_reach_mm, back.table_error) == (
+        samples.driver, samples.uniform_radius_mm, samples.table_reach_mm, samples.table_error)
+
+
+@pytest.mark.parametrize("change, needle", [
+    ({"weights": np.ones(3, np.float32)}, "weights"),
+    ({"rdTable": np.full((8, 3), np.nan, np.float32)}, "finite"),
+    ({"driver": 5}, "driver"),
+    ({"tableReachMm": None}, "malformed"),
+])
+def test_malformed_tables_are_refused(change, needle):
+    options = ScreenOptions(samples=4, uniform=1)
+    tables = screen_tables(screen_samples(preset("marble"), options), options)
+    with pytest.raises(ValueError, match=needle):
+        screen_samples_from_tables({**tables, **change})

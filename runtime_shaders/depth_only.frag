@@ -1,0 +1,3 @@
+// Shadow-map pass: depth only (drawn with plain.vert from the light).
+void main() {
+}
