@@ -133,7 +133,8 @@ def _tradeoff(args) -> int:
             from .screen_tradeoff import screen_tradeoff
 
             result = screen_tradeoff(path, scale, material, out, samples=args.samples, uniform=args.uniform,
-                                     lights=args.lights, size=args.size)
+                                     lights=args.lights, size=args.size,
+                                     reference_subdivisions=args.reference_subdivisions)
         else:
             from .kernels_tradeoff import kernels_tradeoff
 
@@ -335,6 +336,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"screen: importance samples N swept (default {','.join(map(str, SAMPLES))})")
     t.add_argument("--uniform", type=_numbers(int), default=UNIFORM,
                    help=f"screen: uniform samples U swept (default {','.join(map(str, UNIFORM))})")
+    t.add_argument("--reference-subdivisions", type=int, default=0,
+                   help="screen: midpoint subdivisions of the surface the per-vertex reference is computed on "
+                        "(the technique shades per pixel; default 0)")
     t.add_argument("--lights", type=int, default=3, help="random test lights; the worst RMSE counts (default 3)")
     t.add_argument("--size", type=int, default=256, help="image size (default 256)")
     t.add_argument("--out", help="folder for the JSON, CSV and plot (default: next to the input)")

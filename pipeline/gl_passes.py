@@ -20,6 +20,22 @@ def shadow_texture(ctx, size: int):
     return texture
 
 
+class OwnedObjects:
+    """GL objects made for one item's passes, released together (newest first)."""
+
+    def __init__(self):
+        self._objects: list = []
+
+    def release(self) -> None:
+        for o in reversed(self._objects):
+            o.release()
+        self._objects = []
+
+    def _keep(self, obj):
+        self._objects.append(obj)
+        return obj
+
+
 class Pass:
     """One draw (`vertices` indices from `first`) into a framebuffer with its samplers and
     uniforms, set again every run (passes of several items share the renderer's programs)."""

@@ -25,10 +25,10 @@ from __future__ import annotations
 import numpy as np
 
 from .kernels_data import KernelsData
-from .gl_passes import SHADOW_OFFSET_TEXELS, Pass, gl_matrix, read_texture, shadow_texture
+from .gl_passes import SHADOW_OFFSET_TEXELS, OwnedObjects, Pass, gl_matrix, read_texture, shadow_texture
 from .prt_runtime import table_texture
 
-class KernelsPasses:
+class KernelsPasses(OwnedObjects):
     """One kernels item's GL objects and passes 1-4.
 
     Parameters
@@ -57,7 +57,7 @@ class KernelsPasses:
 
         self.ctx, self.target = ctx, target
         self.data: KernelsData = item["kernels"]
-        self._objects: list = []
+        super().__init__()
         self._limit = ctx.info["GL_MAX_TEXTURE_SIZE"]
         w, h, n = self.data.width, self.data.height, self.data.vertex_count
         self.vertex_width = min(table_width, n)
@@ -231,15 +231,6 @@ class KernelsPasses:
         direct = read_texture(self.direct, 4)[: d.vertex_count]
         return {"illumination": e, "local": read_texture(self.local, 4)[d.texels, :3], "e_g": direct[:, 3],
                 "b_d": direct[:, :3], "b_g": read_texture(self.global_, 4)[: d.vertex_count, :3]}
-
-    def release(self) -> None:
-        for o in reversed(self._objects):
-            o.release()
-        self._objects = []
-
-    def _keep(self, obj):
-        self._objects.append(obj)
-        return obj
 
     def _target(self, texture):
         return self._keep(self.ctx.framebuffer(color_attachments=[texture]))

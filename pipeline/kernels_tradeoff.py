@@ -28,8 +28,7 @@ from .kernels_precompute import BLENDS, KERNELS_DEFAULTS, SEAMS, KernelsOptions,
 from .load import load_scene
 from .materials import Material
 from .options import BAKE_DEFAULTS
-from .reference import Light, reference_scattering
-from .tradeoff import image_exposure, lit_images, tradeoff_result, worst_rmse
+from .tradeoff import image_exposure, lit_images, reference_lights, sweep_rows, tradeoff_result, worst_rmse
 from .verify import merged_primitive
 
 RESOLUTIONS = (256, 512, 1024)
@@ -89,12 +88,7 @@ def kernels_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mate
     parts = [(p.positions, p.faces) for p in prims]
     render_vertices = [(p.positions, p.normals) for p in prims]
 
-    rng = np.random.default_rng(seed)
-    test = rng.normal(size=(lights, 3))
-    test /= np.linalg.norm(test, axis=1, keepdims=True)
-    clustered = len(surface.positions) > CLUSTERED_ABOVE
-    reference = [reference_scattering(surface, mm_per_unit, material, Light("directional", tuple(d)),
-                                      clustered=clustered) for d in test]  # each (3, n welded)
+    test, reference = reference_lights(surface, mm_per_unit, material, lights, seed)  # each (3, n welded)
 
     renderer = Renderer((size, size))
     camera = fit_camera(surface.positions)
@@ -141,16 +135,12 @@ def kernels_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mate
         return row, item
 
     default_row, default_item = measure(resolution, options)
-    rows = [{"sweep": "default", **default_row}]
-    sweeps = [("atlas_resolution", [(res, options) for res in resolutions]),
-              ("kernel_size", [(resolution, replace(options, kernel_size=k)) for k in sizes]),
-              ("threshold", [(resolution, replace(options, threshold=th)) for th in thresholds]),
-              ("blend", [(resolution, replace(options, blend=b)) for b in blends]),
-              ("seams", [(resolution, replace(options, seams=s)) for s in SEAMS])]
-    for sweep, configs in sweeps:
-        for res, opts in configs:
-            row = default_row if (res, opts) == (resolution, options) else measure(res, opts)[0]
-            rows.append({"sweep": sweep, **row})
+    rows = sweep_rows(default_row, (resolution, options), [
+        ("atlas_resolution", [(res, options) for res in resolutions]),
+        ("kernel_size", [(resolution, replace(options, kernel_size=k)) for k in sizes]),
+        ("threshold", [(resolution, replace(options, threshold=th)) for th in thresholds]),
+        ("blend", [(resolution, replace(options, blend=b)) for b in blends]),
+        ("seams", [(resolution, replace(options, seams=s)) for s in SEAMS])], measure)
 
     result = tradeoff_result("kernels", path, out_dir, rows, renderer, camera, base, [default_item],
                              len(surface.positions), material, mm_per_unit, test, _plot)

@@ -410,7 +410,7 @@ class _Builder:
     def far(self, x, area, nrm, starts, cell_of, rows, pairs) -> sp.csr_matrix:
         """(3T, m): each target's cluster kernel Rd_c(D) + ½ tr(H Σ) for the clusters its cell
         reads at this level (`pairs` of target cell, source cell)."""
-        n, m = len(x), len(starts)
+        m = len(starts)
         cluster_area = np.add.reduceat(area, starts)
         safe = np.where(cluster_area > 0, cluster_area, 1.0)
         centroid = (np.add.reduceat(area[:, None] * x, starts, axis=0) / safe[:, None]).T.copy()  # (3, m)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .gl_passes import SHADOW_OFFSET_TEXELS, Pass, gl_matrix, read_texture, shadow_texture
+from .gl_passes import SHADOW_OFFSET_TEXELS, OwnedObjects, Pass, gl_matrix, read_texture, shadow_texture
 from .screen_data import ScreenSamples
 
 
@@ -62,27 +62,18 @@ def table_total(samples: ScreenSamples) -> np.ndarray:
     return 2.0 * np.pi * np.trapezoid(samples.table * (reach * t * t) * (2.0 * reach * t), t, axis=1)
 
 
-class ScreenPasses:
+class ScreenPasses(OwnedObjects):
     """One screen item's GL objects and passes 1-4 (module docstring).
 
     Parameters
     ----------
-    ctx : moderngl.Context
-    program : callable
-        ``program(vertex_file, fragment_file) -> moderngl.Program`` (the renderer's cache).
+    ctx, program, light, light_view_projection, shadow_extent, target, shadow_size
+        As `kernels_runtime.KernelsPasses`'.
     item : dict
         A checked render item of kind ``"screen"`` (see `render.Renderer.render`).
-    light : render.RenderLight
-    light_view_projection : (4, 4) float64
-        World to the shadow map's clip space (`render.light_camera`).
-    shadow_extent : float
-        World width the shadow map spans at the item.
     camera : render.Camera
     size : (width, height)
         The image's, which the G-buffer and gather match pixel for pixel.
-    target : moderngl.Framebuffer
-        Bound again after the passes.
-    shadow_size : int
     """
 
     def __init__(self, ctx, program, item: dict, light, light_view_projection: np.ndarray, shadow_extent: float,
@@ -93,7 +84,7 @@ class ScreenPasses:
         self.samples: ScreenSamples = item["screen"]
         options: ScreenRuntimeOptions = item.get("screen_runtime", SCREEN_RUNTIME_DEFAULTS)
         options.check()
-        self._objects: list = []
+        super().__init__()
         limit = ctx.info["GL_MAX_TEXTURE_SIZE"]
         count, entries = len(self.samples.offsets), self.samples.table.shape[1]
         if max(count, entries) > limit:
@@ -211,12 +202,3 @@ class ScreenPasses:
         scattered = read_texture(self.scattered, 4).reshape(h, w, 4)[::-1]
         return {"position": position[..., :3], "irradiance": position[..., 3], "normal": normal[..., :3],
                 "covered": normal[..., 3] > 0.5, "scattered": scattered[..., :3], "share": scattered[..., 3]}
-
-    def release(self) -> None:
-        for o in reversed(self._objects):
-            o.release()
-        self._objects = []
-
-    def _keep(self, obj):
-        self._objects.append(obj)
-        return obj

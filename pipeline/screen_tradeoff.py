@@ -22,14 +22,13 @@ import numpy as np
 
 from ..exporters.atomic import atomic_path
 from .clean import clean_scene
-from .kernels_tradeoff import CLUSTERED_ABOVE
 from .load import load_scene
 from .materials import Material
-from .reference import Light, reference_scattering
 from .screen_layout import screen_bytes, screen_tables
 from .screen_runtime import SCREEN_RUNTIME_DEFAULTS, ScreenRuntimeOptions
 from .screen_samples import SCREEN_DEFAULTS, ScreenOptions, screen_samples
-from .tradeoff import image_exposure, lit_images, tradeoff_result, worst_rmse
+from .subdivide import subdivided_surface
+from .tradeoff import reference_lights, reference_views, sweep_rows, tradeoff_result, worst_rmse
 
 SAMPLES = (8, 16, 32, 64, 128)
 UNIFORM = (0, 4, 8, 16, 32)
@@ -41,7 +40,8 @@ def screen_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mater
                     samples=SAMPLES, uniform=UNIFORM, runtime_changes=RUNTIME_CHANGES, lights: int = 3,
                     size: int = 256, seed: int = 0,
                     options: ScreenOptions = SCREEN_DEFAULTS,
-                    runtime: ScreenRuntimeOptions = SCREEN_RUNTIME_DEFAULTS, frames: int = 10) -> dict:
+                    runtime: ScreenRuntimeOptions = SCREEN_RUNTIME_DEFAULTS, frames: int = 10,
+                    reference_subdivisions: int = 0) -> dict:
     """Run the sweeps and write ``<stem>.tradeoff.screen.json``, ``.csv`` and ``.png`` into `out_dir`.
 
     Parameters
@@ -56,6 +56,10 @@ def screen_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mater
         The default configuration.
     frames : int
         Frames timed per configuration.
+    reference_subdivisions : int
+        Midpoint subdivisions of the surface the reference is computed and drawn on
+        (`subdivide.subdivided_surface`): the screen technique shades per pixel, a per-vertex
+        reference only as finely as the vertices are spaced.
 
     Returns
     -------
@@ -66,28 +70,21 @@ def screen_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mater
         precompute), ``frame_ms``, ``rmse_image`` (worst over the lights), ``rmse_object`` (the
         same over the object's pixels)), ``frame_ms_sss`` (the default), ``frame_ms_plain``,
         ``frame_ratio``, ``asset``, ``vertices``, ``material``, ``mm_per_unit``, ``lights``,
-        ``image_size``, ``outputs``.
+        ``image_size``, ``outputs``, ``reference_vertices``.
     """
-    from .render import Renderer, RenderLight, fit_camera
+    from .render import RenderLight
 
     path = Path(path)
     clean = clean_scene(load_scene(str(path)))
     surface = max(clean.surfaces, key=lambda s: len(s.positions))
 
-    rng = np.random.default_rng(seed)
-    test = rng.normal(size=(lights, 3))
-    test /= np.linalg.norm(test, axis=1, keepdims=True)
-    clustered = len(surface.positions) > CLUSTERED_ABOVE
-    reference = [reference_scattering(surface, mm_per_unit, material, Light("directional", tuple(d)),
-                                      clustered=clustered) for d in test]
-
-    renderer = Renderer((size, size))
-    camera = fit_camera(surface.positions)
+    fine = subdivided_surface(surface, reference_subdivisions)
+    test, reference = reference_lights(fine, mm_per_unit, material, lights, seed)
+    views = reference_views(fine, material, test, reference, size)
+    renderer, camera, exposure = views.renderer, views.camera, views.exposure
+    reference_images, masks = views.images, views.masks
     base = dict(positions=surface.positions, normals=surface.normals, faces=surface.faces, model=np.eye(4),
                 eta=material.eta)
-    drawn = lit_images(renderer, camera, base, test, reference)
-    reference_images, masks = [im for im, _ in drawn], [m for _, m in drawn]
-    exposure = image_exposure(reference_images)
 
     def measure(opts: ScreenOptions, run: ScreenRuntimeOptions) -> tuple[dict, dict]:
         t = time.perf_counter()
@@ -105,17 +102,14 @@ def screen_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mater
         return row, item
 
     default_row, default_item = measure(options, runtime)
-    rows = [{"sweep": "default", **default_row}]
-    sweeps = [("samples", [(replace(options, samples=n), runtime) for n in samples]),
-              ("uniform", [(replace(options, uniform=u), runtime) for u in uniform]),
-              ("runtime", [(options, replace(runtime, **change)) for change in runtime_changes])]
-    for sweep, configs in sweeps:
-        for opts, run in configs:
-            row = default_row if (opts, run) == (options, runtime) else measure(opts, run)[0]
-            rows.append({"sweep": sweep, **row})
+    rows = sweep_rows(default_row, (options, runtime), [
+        ("samples", [(replace(options, samples=n), runtime) for n in samples]),
+        ("uniform", [(replace(options, uniform=u), runtime) for u in uniform]),
+        ("runtime", [(options, replace(runtime, **change)) for change in runtime_changes])], measure)
 
     result = tradeoff_result("screen", path, out_dir, rows, renderer, camera, base, [default_item],
-                             len(surface.positions), material, mm_per_unit, test, _plot)
+                             len(surface.positions), material, mm_per_unit, test, _plot,
+                             {"reference_vertices": len(fine.positions)})
     renderer.release()
     return result
 

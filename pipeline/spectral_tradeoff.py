@@ -26,13 +26,11 @@ import numpy as np
 from ..exporters.atomic import atomic_path
 from .clean import clean_scene
 from .image_metrics import best_fit_scale
-from .kernels_tradeoff import CLUSTERED_ABOVE
 from .load import load_scene
 from .materials import Material
 from .naive_normals import naive_normals
-from .reference import Light, reference_scattering
 from .spectral_precompute import SPECTRAL_DEFAULTS, SpectralOptions, precompute_spectral
-from .tradeoff import image_exposure, lit_images, tradeoff_result, worst_rmse
+from .tradeoff import lit_images, reference_lights, reference_views, tradeoff_result, worst_rmse
 from .verify import PLAIN_ALBEDO
 from .visibility import direction_visibility
 
@@ -72,27 +70,16 @@ def spectral_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mat
         ``frame_ratio``, ``asset``, ``vertices``, ``material``, ``mm_per_unit``, ``lights``,
         ``image_size``, ``outputs``.
     """
-    from .render import Renderer, fit_camera
-
     path = Path(path)
     clean = clean_scene(load_scene(str(path)))
     surface = max(clean.surfaces, key=lambda s: len(s.positions))
 
-    rng = np.random.default_rng(seed)
-    test = rng.normal(size=(lights, 3))
-    test /= np.linalg.norm(test, axis=1, keepdims=True)
-    clustered = len(surface.positions) > CLUSTERED_ABOVE
-    reference = [reference_scattering(surface, mm_per_unit, material, Light("directional", tuple(d)),
-                                      clustered=clustered) for d in test]  # each (3, n)
+    test, reference = reference_lights(surface, mm_per_unit, material, lights, seed)  # each (3, n)
     visible = direction_visibility(surface.positions, surface.faces, surface.normals, test)  # (n, lights)
 
-    renderer = Renderer((size, size))
-    camera = fit_camera(surface.positions)
-    base = dict(positions=surface.positions, normals=surface.normals, faces=surface.faces, model=np.eye(4),
-                eta=material.eta)
-    drawn = lit_images(renderer, camera, base, test, reference)
-    reference_images, masks = [im for im, _ in drawn], [m for _, m in drawn]
-    exposure = image_exposure(reference_images)
+    views = reference_views(surface, material, test, reference, size)
+    renderer, camera, base, exposure = views.renderer, views.camera, views.base, views.exposure
+    reference_images, masks = views.images, views.masks
 
     def measure(normals: np.ndarray) -> dict:
         """``rmse_image`` and ``scale`` of Lambert with unit `normals` (n, 3)."""

@@ -14,6 +14,7 @@ import csv
 import json
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from .load import load_scene
 from .materials import Material
 from .prt_compress import PRT_COMPRESS_DEFAULTS, WEIGHTS, PrtCompressOptions, bytes_per_vertex, compress_prt, evaluate
 from .prt_precompute import irradiance_signal
+from .reference import Light, reference_scattering
 from .scatter_operator import SCATTER_DEFAULTS, scatter_operator
 from .verify import PLAIN_ALBEDO
 from .visibility import direction_visibility
@@ -34,6 +36,9 @@ from .visibility import direction_visibility
 KS = (25, 50, 100, 200, 400)
 ORDERS = (1, 2, 3, 4, 5, 6, 7, 8)
 REFERENCE_FRACTIONS = (0.0025, 0.005, 0.01, 0.02, 0.05)
+#: Above this many welded vertices the other techniques' tradeoffs sum the reference's far sources
+#: through clusters (~1e-3 of q; the exact sum would take tens of minutes).
+CLUSTERED_ABOVE = 30000
 
 
 def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material, out_dir: str | os.PathLike,
@@ -130,7 +135,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
 
 def tradeoff_result(technique: str, path: Path, out_dir: str | os.PathLike, rows: list[dict], renderer, camera,
                     base: dict, runtime: list[dict], vertices: int, material: Material, mm_per_unit: float,
-                    lights: np.ndarray, plot=None) -> dict:
+                    lights: np.ndarray, plot=None, extra: dict | None = None) -> dict:
     """A tradeoff's result with its frame times, written as ``<stem>.tradeoff.<technique>.json``,
     ``.csv`` and ``.png`` into `out_dir` (`write_outputs`).
 
@@ -150,6 +155,8 @@ def tradeoff_result(technique: str, path: Path, out_dir: str | os.PathLike, rows
         The test lights (frames are timed under the first).
     plot : callable, optional
         ``plot(rows, path)`` (`write_outputs`).
+    extra : dict, optional
+        More keys of the result.
     """
     from .render import RenderLight
 
@@ -163,9 +170,85 @@ def tradeoff_result(technique: str, path: Path, out_dir: str | os.PathLike, rows
               "mm_per_unit": mm_per_unit, "lights": lights.tolist(), "image_size": list(renderer.size), "rows": rows,
               "frame_ms_sss": frame_sss, "frame_ms_plain": frame_plain,
               "frame_ratio": frame_sss / max(frame_plain, 1e-9),
-              "outputs": {"json": f"{stem}.json", "csv": f"{stem}.csv", "plot": f"{stem}.png"}}
+              "outputs": {"json": f"{stem}.json", "csv": f"{stem}.csv", "plot": f"{stem}.png"}, **(extra or {})}
     write_outputs(result, stem, plot)
     return result
+
+
+def reference_lights(surface, mm_per_unit: float, material: Material, lights: int,
+                     seed: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The test lights of the technique tradeoffs and the offline reference under each.
+
+    Parameters
+    ----------
+    surface : clean.Surface
+    lights : int
+        Random unit directions (seeded with `seed`).
+
+    Returns
+    -------
+    test : (lights, 3) float64
+    reference : list of (3, n) float64
+        `reference.reference_scattering` per light: the exact sum, or through clusters above
+        `CLUSTERED_ABOVE` vertices.
+    """
+    rng = np.random.default_rng(seed)
+    test = rng.normal(size=(lights, 3))
+    test /= np.linalg.norm(test, axis=1, keepdims=True)
+    clustered = len(surface.positions) > CLUSTERED_ABOVE
+    return test, [reference_scattering(surface, mm_per_unit, material, Light("directional", tuple(d)),
+                                       clustered=clustered) for d in test]
+
+
+@dataclass(frozen=True, eq=False)
+class ReferenceViews:
+    """A welded surface drawn from one camera under each test light with the reference's q.
+
+    Attributes
+    ----------
+    renderer : render.Renderer
+    camera : render.Camera
+    base : dict
+        The render item without its data (`lit_images`).
+    images : list of (H, W, 3) float32
+    masks : list of (H, W) bool
+    exposure : float
+        `image_exposure` of the images.
+    """
+
+    renderer: object
+    camera: object
+    base: dict
+    images: list
+    masks: list
+    exposure: float
+
+
+def reference_views(surface, material: Material, lights: np.ndarray, reference: list[np.ndarray],
+                    size: int) -> ReferenceViews:
+    """`ReferenceViews` of `surface` (a fitted camera, `size`² images) under the (m, 3) `lights`
+    with `reference` (`reference_lights`)."""
+    from .render import Renderer, fit_camera
+
+    renderer = Renderer((size, size))
+    camera = fit_camera(surface.positions)
+    base = dict(positions=surface.positions, normals=surface.normals, faces=surface.faces, model=np.eye(4),
+                eta=material.eta)
+    drawn = lit_images(renderer, camera, base, lights, reference)
+    images = [im for im, _ in drawn]
+    return ReferenceViews(renderer, camera, base, images, [m for _, m in drawn], image_exposure(images))
+
+
+def sweep_rows(default_row: dict, default: tuple, sweeps, measure) -> list[dict]:
+    """The default's row (``sweep = "default"``), then one row per configuration of each sweep
+    (``[(name, [configuration, ...]), ...]``), the default's configuration reusing its row and
+    the others measured by ``measure(*configuration)[0]``."""
+    rows = [{"sweep": "default", **default_row}]
+    for sweep, configs in sweeps:
+        for config in configs:
+            row = default_row if config == default else measure(*config)[0]
+            rows.append({"sweep": sweep, **row})
+    return rows
 
 
 def lit_images(renderer, camera, base: dict, lights: np.ndarray,

@@ -58,15 +58,18 @@ def test_samples_buy_accuracy(result):
 
 def test_outputs_are_written(result):
     assert_tradeoff_written(result, "ball.tradeoff.screen.json")
+    assert result["reference_vertices"] == result["vertices"]  # no subdivision by default
     assert result["frame_ms_sss"] > 0 and result["frame_ratio"] > 0
 
 
 def test_cli_runs_the_screen_tradeoff(ball, tmp_path, capsys):
     assert main(["tradeoff", str(ball), "--technique", "screen", "--material", "skin1", "--scale-mm", "4",
                  "--samples", "4", "--uniform", "2", "--lights", "1", "--size", "48", "--out", str(tmp_path),
-                 "--json"]) == 0
+                 "--reference-subdivisions", "1", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert [r["samples"] for r in result["rows"] if r["sweep"] == "samples"] == [4]
+    # the reference on the ball cut 4:1 (642 vertices, 1280 faces -> 2562 vertices)
+    assert (result["vertices"], result["reference_vertices"]) == (642, 2562)
     assert Path(result["outputs"]["plot"]).exists()
     assert main(["tradeoff", str(ball), "--technique", "screen", "--material", "skin1", "--scale-mm", "4",
                  "--samples", "4", "--uniform", "2", "--lights", "1", "--size", "48", "--out", str(tmp_path)]) == 0
