@@ -50,13 +50,16 @@ def main() -> None:
         result = screen_tradeoff(ASSETS / file, mm, preset(material), out / name, samples=samples, uniform=(),
                                  runtime_changes=(), lights=args.lights, size=args.size, frames=args.frames,
                                  reference_subdivisions=args.reference_subdivisions)
+        facing = ", ".join(f"{v:+.2f}" for v in result["lights_towards_camera"])
         print(f"{name}: {result['vertices']} vertices (reference on {result['reference_vertices']}), {mm:g} mm/unit "
-              f"{material}, {args.size}x{args.size}, worst of {args.lights} lights; plain shader "
+              f"{material}, {args.size}x{args.size}, worst of {args.lights} lights (cosine to the camera {facing}); plain shader "
               f"{result['frame_ms_plain']:.2f} ms/frame")
         for r in result["rows"]:
             if r["sweep"] == "samples":
+                per_light = ", ".join(f"{v:.5f}" for v in r["rmse_image_per_light"])
                 print(f"  N={r['samples']:<4} U={r['uniform']:<3} RMSE image {r['rmse_image']:.5f} "
-                      f"object {r['rmse_object']:.5f}  {r['frame_ms']:8.2f} ms/frame  tables {r['bytes']} B")
+                      f"object {r['rmse_object']:.5f} (per light {per_light})  {r['frame_ms']:8.2f} ms/frame  "
+                      f"tables {r['bytes']} B")
     print(f"files in {out}")
 
 

@@ -28,7 +28,8 @@ def inspect_glb(path: str | os.PathLike) -> dict:
         ``vertices``, ``material``, ``attributes`` {``_NAME``: {``count``, ``type``,
         ``componentType`` (name), ``normalized``, ``bytes``, ``bytesPerVertex``}} and
         ``bytesPerVertex`` (all ``_`` attributes); ``materials``: per material with
-        ``extras.sssbake`` its ``index``, ``name``, ``extensions`` (names) and ``sssbake``;
+        ``extras.sssbake`` its ``index``, ``name``, ``extensions`` (names), ``sssbake`` and
+        ``techniques`` (as a mesh's: the screen tables);
         ``bytesPerVertex``: {``_NAME``: bytes / vertices of the primitives carrying it,
         ``total``: all ``_`` attribute bytes / all vertices}.
 
@@ -74,6 +75,7 @@ def inspect_glb(path: str | os.PathLike) -> dict:
             "name": m.name,
             "extensions": sorted(m.extensions or {}),
             "sssbake": m.extras["sssbake"],
+            "techniques": _techniques(gltf, m.extras["sssbake"]),
         }
         for i, m in enumerate(gltf.materials)
         if "sssbake" in (m.extras or {})

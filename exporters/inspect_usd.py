@@ -32,7 +32,9 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
         {``type``, ``interpolation``, ``elementSize``, ``count`` (array elements), ``bytes``
         (count × value bytes, as loaded), ``bytesPerVertex``, ``unit``, ``description``}} and
         ``bytesPerVertex`` (all ``primvars:sss:*``); ``materials``: per Material prim with
-        ``sss:`` attributes its ``path`` and ``sss`` {attribute name without ``sss:``: value};
+        ``sss:`` attributes its ``path``, ``sss`` {attribute name without ``sss:``: value, but
+        ``sss:extras`` and the technique tables}, ``extras`` (its ``sss:extras`` JSON, parsed, or
+        None) and ``techniques`` (as a mesh's: the screen tables);
         ``bytesPerVertex``: {``primvars:sss:<key>``: bytes / vertices of the meshes carrying it,
         ``total``: all ``primvars:sss:*`` bytes / all vertices}.
 
@@ -54,9 +56,15 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
     materials = []
     for prim in Usd.PrimRange(root):
         if prim.IsA(UsdShade.Material):
-            values = _sss_values(prim)
-            if values:
-                materials.append({"path": str(prim.GetPath()), "sss": values})
+            extras = prim.GetAttribute(SSS + "extras").Get()
+            extras = json.loads(extras) if extras else None
+            techniques = _techniques(prim, extras)
+            # the technique tables are summarised, not listed value by value
+            tabled = {t["attribute"] for block in techniques.values() for t in block["tables"].values()}
+            values = _sss_values(prim, tabled | {SSS + "extras"})
+            if values or extras:
+                materials.append({"path": str(prim.GetPath()), "sss": values, "extras": extras,
+                                  "techniques": techniques})
         if not prim.IsA(UsdGeom.Mesh):
             continue
         mesh = UsdGeom.Mesh(prim)
@@ -137,12 +145,12 @@ def _techniques(prim: Usd.Prim, extras: dict | None) -> dict:
     return out
 
 
-def _sss_values(prim: Usd.Prim) -> dict:
-    """The ``sss:`` attributes of `prim` as JSON values, keyed without the prefix."""
+def _sss_values(prim: Usd.Prim, skip: set[str]) -> dict:
+    """The ``sss:`` attributes of `prim` but those in `skip` as JSON values, keyed without the prefix."""
     out = {}
     for attribute in prim.GetAuthoredAttributes():
         name = attribute.GetName()
-        if name.startswith(SSS):
+        if name.startswith(SSS) and name not in skip:
             value = attribute.Get()
             out[name.removeprefix(SSS)] = _json(value)
     return out

@@ -28,6 +28,12 @@ from .kernels_data import KernelsData
 from .gl_passes import SHADOW_OFFSET_TEXELS, OwnedObjects, Pass, gl_matrix, read_texture, shadow_texture
 from .prt_runtime import table_texture
 
+#: Vertex and fragment stage of each offscreen pass.
+PASS_PROGRAMS = {"shadow": ("plain.vert", "depth_only.frag"),
+                 "illumination": ("kernels_atlas.vert", "kernels_illumination.frag"),
+                 "filter": ("fullscreen.vert", "kernels_filter.frag"), "gather": ("fullscreen.vert", "kernels_gather.frag")}
+
+
 class KernelsPasses(OwnedObjects):
     """One kernels item's GL objects and passes 1-4.
 
@@ -114,8 +120,8 @@ class KernelsPasses(OwnedObjects):
         f_values = table("F", data.f_values.astype(np.float32), "f4")
         f_rows = table("vertices", _rows(np.diff(data.f_indptr), f_entries.width), "i4", self.vertex_width)
 
-        local = program("fullscreen.vert", "kernels_filter.frag")
-        gather = program("fullscreen.vert", "kernels_gather.frag")
+        local = program(*PASS_PROGRAMS["filter"])
+        gather = program(*PASS_PROGRAMS["gather"])
         screen = self._keep(ctx.vertex_array(local, []))
         gather_screen = self._keep(ctx.vertex_array(gather, []))
         return [
@@ -165,8 +171,8 @@ class KernelsPasses(OwnedObjects):
                     "u_light": tuple(map(float, light.vector)), "u_intensity": float(light.intensity),
                     "u_mm_per_unit": float(light.mm_per_unit), "u_light_view_projection": gl_matrix(light_view_projection),
                     "u_shadow_offset": SHADOW_OFFSET_TEXELS * shadow_extent / shadow_size}
-        shadow = program("plain.vert", "depth_only.frag")
-        lit = program("kernels_atlas.vert", "kernels_illumination.frag")
+        shadow = program(*PASS_PROGRAMS["shadow"])
+        lit = program(*PASS_PROGRAMS["illumination"])
         lit_vao, lit_target = vao(lit), self._target(self.illumination)
         return [
             Pass(shadow, vao(shadow), self._keep(ctx.framebuffer(depth_attachment=shadow_map)), {}, transforms,

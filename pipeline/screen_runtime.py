@@ -25,6 +25,12 @@ from .gl_passes import SHADOW_OFFSET_TEXELS, OwnedObjects, Pass, gl_matrix, read
 from .screen_data import ScreenSamples
 
 
+#: Vertex and fragment stage of each offscreen pass.
+PASS_PROGRAMS = {"shadow": ("plain.vert", "depth_only.frag"), "gbuffer": ("plain.vert", "screen_gbuffer.frag"),
+                 "gather": ("fullscreen.vert", "screen_gather.frag"),
+                 "resolve": ("fullscreen.vert", "screen_resolve.frag")}
+
+
 @dataclass(frozen=True)
 class ScreenRuntimeOptions:
     """Attributes
@@ -128,9 +134,9 @@ class ScreenPasses(OwnedObjects):
                          "u_count": count, "u_jacobian": int(options.jacobian), "u_fill": int(options.fill),
                          "u_interleave": options.interleave, "u_reach_mm": float(self.samples.table_reach_mm),
                          "u_total": tuple(map(float, table_total(self.samples)))}
-            shadow = program("plain.vert", "depth_only.frag")
-            gbuffer = program("plain.vert", "screen_gbuffer.frag")
-            gather = program("fullscreen.vert", "screen_gather.frag")
+            shadow = program(*PASS_PROGRAMS["shadow"])
+            gbuffer = program(*PASS_PROGRAMS["gbuffer"])
+            gather = program(*PASS_PROGRAMS["gather"])
             self._first = [
                 Pass(shadow, vao(shadow), self._keep(ctx.framebuffer(depth_attachment=shadow_map)), {},
                      {**transforms, "u_view_projection": gl_matrix(light_view_projection)}, triangles, clear=True),
@@ -144,7 +150,7 @@ class ScreenPasses(OwnedObjects):
                                  {"u_position": self.position, "u_normal": self.normal, "u_samples": sample_table,
                                   "u_rd": rd_table}, gathering, 3)]
             if resolving:
-                resolve = program("fullscreen.vert", "screen_resolve.frag")
+                resolve = program(*PASS_PROGRAMS["resolve"])
                 self._second.append(Pass(resolve, self._keep(ctx.vertex_array(resolve, [])),
                                          self._keep(ctx.framebuffer(color_attachments=[self.scattered])),
                                          {"u_gathered": gathered, "u_position": self.position,

@@ -67,10 +67,11 @@ def screen_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mater
         ``rows`` (the default first, ``sweep = "default"``, then ``"samples"``, ``"uniform"``,
         ``"runtime"``: ``samples``, ``uniform``, ``jacobian``, ``fill``, ``interleave``,
         ``bytes`` (the material's tables), ``bytes_per_vertex`` (0), ``seconds`` (the tables'
-        precompute), ``frame_ms``, ``rmse_image`` (worst over the lights), ``rmse_object`` (the
-        same over the object's pixels)), ``frame_ms_sss`` (the default), ``frame_ms_plain``,
+        precompute), ``frame_ms``, ``rmse_image`` (worst over the lights), ``rmse_image_per_light``,
+        ``rmse_object`` (the worst over the object's pixels)), ``frame_ms_sss`` (the default), ``frame_ms_plain``,
         ``frame_ratio``, ``asset``, ``vertices``, ``material``, ``mm_per_unit``, ``lights``,
-        ``image_size``, ``outputs``, ``reference_vertices``.
+        ``image_size``, ``outputs``, ``reference_vertices``, ``lights_towards_camera`` (each light's
+        cosine to the direction of the camera).
     """
     from .render import RenderLight
 
@@ -85,6 +86,9 @@ def screen_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mater
     reference_images, masks = views.images, views.masks
     base = dict(positions=surface.positions, normals=surface.normals, faces=surface.faces, model=np.eye(4),
                 eta=material.eta)
+    # back-lit views (light from behind the object) are where screen space misses most
+    towards_camera = np.asarray(camera.eye) - 0.5 * (surface.positions.min(axis=0) + surface.positions.max(axis=0))
+    towards_camera /= np.linalg.norm(towards_camera)
 
     def measure(opts: ScreenOptions, run: ScreenRuntimeOptions) -> tuple[dict, dict]:
         t = time.perf_counter()
@@ -97,6 +101,7 @@ def screen_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mater
                "bytes_per_vertex": 0.0, "seconds": seconds,
                "frame_ms": renderer.frame_ms([item], camera, RenderLight(False, tuple(test[0]), 1.0), frames),
                "rmse_image": worst_rmse([im for im, _ in images], reference_images, exposure),
+               "rmse_image_per_light": [worst_rmse([im], [ref], exposure) for (im, _), ref in zip(images, reference_images)],
                "rmse_object": worst_rmse([im for im, _ in images], reference_images, exposure,
                                          [m | mask for m, (_, mask) in zip(masks, images)])}
         return row, item
@@ -109,7 +114,8 @@ def screen_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mater
 
     result = tradeoff_result("screen", path, out_dir, rows, renderer, camera, base, [default_item],
                              len(surface.positions), material, mm_per_unit, test, _plot,
-                             {"reference_vertices": len(fine.positions)})
+                             {"reference_vertices": len(fine.positions),
+                              "lights_towards_camera": (test @ towards_camera).tolist()})
     renderer.release()
     return result
 

@@ -51,3 +51,19 @@ def test_files_without_screen_tables_and_broken_blocks_are_refused(baked, tmp_pa
     gltf.save(str(tmp_path / "none.glb"))
     with pytest.raises(ScreenReadError, match="bake with --techniques screen"):
         read_screen_glb(tmp_path / "none.glb")
+
+
+def test_inspect_summarises_the_material_tables(baked):
+    from sssbake.exporters.inspect_gltf import inspect_glb
+    from sssbake.exporters.inspect_usd import inspect_usdc
+
+    folder, _, made = baked
+    sizes = {"offsets": 4 * made.offsets.size, "weights": 4 * made.weights.size, "rdTable": 4 * made.table.size}
+    (gl,) = inspect_glb(folder / "ball.glb")["materials"]
+    (us,) = inspect_usdc(folder / "ball.usdc")["materials"]
+    for info in (gl, us):
+        block = info["techniques"]["screen"]
+        assert {k: t["bytes"] for k, t in block["tables"].items()} == sizes
+        assert block["bytes"] == sum(sizes.values())
+    # USD: the tables are not listed value by value among the material's attributes
+    assert not any(key.startswith("screen:") for key in us["sss"]) and us["extras"]["screen"]["samples"] == 10

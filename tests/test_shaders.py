@@ -7,7 +7,9 @@ import pytest
 
 from sssbake.pipeline.directions import octahedral_texel
 from sssbake.pipeline.fresnel import fresnel_transmittance, schlick_transmittance
+from sssbake.pipeline.kernels_runtime import PASS_PROGRAMS as KERNELS_PASSES
 from sssbake.pipeline.render import PROGRAMS
+from sssbake.pipeline.screen_runtime import PASS_PROGRAMS as SCREEN_PASSES
 from sssbake.pipeline.sh import sh_basis
 from sssbake.pipeline.shaders import shader_source
 
@@ -39,6 +41,16 @@ def test_every_program_compiles_and_links(ctx, kind, dialect):
     vertex, fragment = PROGRAMS[kind]
     program = ctx.program(vertex_shader=shader_source(vertex, dialect), fragment_shader=shader_source(fragment, dialect))
     assert "in_position" in program and "u_view_projection" in program
+
+
+OFFSCREEN = sorted({pair for passes in (KERNELS_PASSES, SCREEN_PASSES) for pair in passes.values()})
+
+
+@pytest.mark.parametrize("dialect", DIALECTS)
+@pytest.mark.parametrize("vertex, fragment", OFFSCREEN)
+def test_every_offscreen_pass_compiles_and_links(ctx, vertex, fragment, dialect):
+    program = ctx.program(vertex_shader=shader_source(vertex, dialect), fragment_shader=shader_source(fragment, dialect))
+    assert len(list(program)) > 0
 
 
 def test_dialect_headers_and_includes():
