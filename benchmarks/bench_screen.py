@@ -8,9 +8,10 @@ Meshes at the scales of benchmarks/shared_assets.toml (hand 200 mm/unit skin1, b
 marble, armadillo 150 mm/unit potato, teapot 25 mm/unit wholemilk, dragon 10 mm/unit skin2).
 The figures are `screen_tradeoff`'s rows of the N sweep (U and the runtime options at their
 defaults): RMSE the worst over `--lights` random test lights (seeded), over the image and over
-the object's pixels, the reference computed per vertex on the surface subdivided
-`--reference-subdivisions` times (the technique shades per pixel); frame time the median of `--frames` frames under the first light (shadow map,
-G-buffer, gather, resolve and the final draw), next to the plain shader's. On a CPU machine the
+the object's pixels, and per light, the reference computed per vertex on the surface subdivided
+`--reference-subdivisions` times (the technique shades per pixel); frame time the median of
+`--frames` frames under the first light (shadow map, G-buffer, gather, resolve and the final
+draw), next to the plain shader's. On a CPU machine the
 frame times are Mesa llvmpipe's; on a GPU machine, the GPU's. Skips meshes whose files are absent.
 """
 

@@ -11,8 +11,8 @@ uploaded as two small textures and the per-frame passes before `render`'s final 
    neighbouring surface (``fullscreen.vert``, ``screen_resolve.frag``; with interleaving only).
 
 The paper's N accumulation passes (one per sample) are one here: a fragment loops over the
-samples, the single pass it foresaw for later hardware. Nothing is baked per vertex, so the passes serve deforming
-meshes as they are.
+samples, the single pass it foresaw for later hardware. Nothing is baked per vertex, so the passes
+serve deforming meshes as they are.
 """
 
 from __future__ import annotations

@@ -101,7 +101,8 @@ def screen_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Mater
                "bytes_per_vertex": 0.0, "seconds": seconds,
                "frame_ms": renderer.frame_ms([item], camera, RenderLight(False, tuple(test[0]), 1.0), frames),
                "rmse_image": worst_rmse([im for im, _ in images], reference_images, exposure),
-               "rmse_image_per_light": [worst_rmse([im], [ref], exposure) for (im, _), ref in zip(images, reference_images)],
+               "rmse_image_per_light": [worst_rmse([im], [ref], exposure)
+                                        for (im, _), ref in zip(images, reference_images)],
                "rmse_object": worst_rmse([im for im, _ in images], reference_images, exposure,
                                          [m | mask for m, (_, mask) in zip(masks, images)])}
         return row, item
