@@ -39,7 +39,8 @@ def _bake(args) -> int:
                  "kernels_size", "kernels_threshold", "kernels_blend", "kernels_seams", "kernels_bits",
                  "kernels_global_vertices", "spectral_eigenpairs", "spectral_width_mm", "spectral_alpha",
                  "spectral_radius_mm", "spectral_variant", "spectral_basis", "screen_samples", "screen_uniform",
-                 "screen_table_error"):
+                 "screen_table_error", "lpv_resolution", "lpv_padding", "lpv_supersample", "lpv_field",
+                 "lpv_vein_mm", "lpv_max_steps"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -86,7 +87,7 @@ def _verify(args) -> int:
         light = DEFAULT_LIGHT if args.light_dir is None else _vector(args.light_dir, "--light-dir")
         position = None if args.light_pos is None else _vector(args.light_pos, "--light-pos")
         result = verify_file(args.file, args.technique, light, args.size, args.out, args.frames, position,
-                             args.reference)
+                             args.reference, args.lpv_steps)
     except (OSError, ValueError, PrtReadError) as e:
         print(f"error: {args.file}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
         return 1
@@ -129,6 +130,11 @@ def _tradeoff(args) -> int:
             from .spectral_tradeoff import spectral_tradeoff
 
             result = spectral_tradeoff(path, scale, material, out, lights=args.lights, size=args.size)
+        elif args.technique == "lpv":
+            from .lpv_tradeoff import lpv_tradeoff
+
+            result = lpv_tradeoff(path, scale, material, out, resolutions=args.lpv_resolutions, steps=args.lpv_steps,
+                                  field=args.lpv_field, lights=args.lights, size=args.size)
         elif args.technique == "screen":
             from .screen_tradeoff import screen_tradeoff
 
@@ -154,6 +160,9 @@ def _tradeoff(args) -> int:
             elif args.technique == "spectral":
                 knobs = (f"{r['normals']:>8} m={r['eigenpairs']:<4} width x{r['width_factor']:<5g} "
                          f"alpha={r['alpha']:<4g}")
+            elif args.technique == "lpv":
+                knobs = (f"grid={r['resolution']:<3} {'x'.join(map(str, r['shape'])):<11} cell {r['cell_mm']:6.2f} mm "
+                         f"steps={r['steps']:<3} {r['frame_ms']:9.2f} ms/frame")
             elif args.technique == "screen":
                 knobs = (f"N={r['samples']:<4} U={r['uniform']:<3} jacobian={r['jacobian']!s:<5} fill={r['fill']!s:<5} "
                          f"interleave={r['interleave']:<2} {r['frame_ms']:8.2f} ms/frame")
@@ -161,7 +170,8 @@ def _tradeoff(args) -> int:
                 knobs = (f"atlas={r['atlas_resolution']:<5} k={r['kernel_size']:<2} threshold={r['threshold']:<6g} "
                          f"{r['blend']:<9} seams={r['seams']:<6}")
             # screen stores nothing per vertex: its tables are per material
-            size = f"{r['bytes']:7d} B/material" if args.technique == "screen" else f"{r['bytes_per_vertex']:9.1f} B/vertex"
+            size = (f"{r['bytes']:7d} B/material" if args.technique == "screen" else
+                    f"{r['bytes']:9d} B/mesh" if args.technique == "lpv" else f"{r['bytes_per_vertex']:9.1f} B/vertex")
             print(f"{r['sweep']:>16} {knobs} {size} {r['seconds']:7.2f} s  RMSE {r['rmse_image']:.5f}")
         print(f"frame {result['frame_ms_sss']:.2f} ms with {args.technique}, {result['frame_ms_plain']:.2f} ms without "
               f"(ratio {result['frame_ratio']:.2f}); {result['outputs']['plot']}")
@@ -225,7 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
     b.add_argument("--atlas-resolution", type=int, help=f"atlas texels per side (default {BAKE_DEFAULTS.atlas_resolution})")
     b.add_argument("--techniques", help="comma-separated techniques to bake besides the fallback: prt, kernels, "
-                                       "spectral, screen")
+                                       "spectral, screen, lpv")
     b.add_argument("--prt-directions", type=int, help=f"prt: light directions K (default {BAKE_DEFAULTS.prt_directions})")
     b.add_argument("--prt-energy-dropped", type=float,
                    help=f"prt: fraction of R_d the gather radius may drop (default {BAKE_DEFAULTS.prt_energy_dropped})")
@@ -287,6 +297,16 @@ def build_parser() -> argparse.ArgumentParser:
                              ("table_error", float, "bound on the Rd table's relative interpolation error")):
         b.add_argument("--screen-" + name.replace("_", "-"), type=kind,
                        help=f"screen: {what} (default {getattr(BAKE_DEFAULTS, 'screen_' + name):g})")
+    for name, kind, what in (("resolution", int, "grid cells along the object's longest side"),
+                             ("padding", int, "empty cells around the object"),
+                             ("supersample", int, "occupancy samples per cell side"),
+                             ("vein_mm", float, "marble field: spacing of the veins, mm"),
+                             ("max_steps", int, "propagation steps the rendering's scale is tabulated for")):
+        b.add_argument("--lpv-" + name.replace("_", "-"), type=kind,
+                       help=f"lpv: {what} (default {getattr(BAKE_DEFAULTS, 'lpv_' + name):g})")
+    b.add_argument("--lpv-field", choices=["homogeneous", "marble"],
+                   help=f"lpv: the medium, the material everywhere or marble veins through it "
+                        f"(default {BAKE_DEFAULTS.lpv_field})")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")
@@ -300,7 +320,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("verify", help="render an export with the shipped GLSL and the offline reference; image RMSE")
     v.add_argument("file", help="a .glb written by sssbake bake")
-    v.add_argument("--technique", default="prt", choices=["prt", "kernels", "spectral", "screen"])
+    v.add_argument("--technique", default="prt", choices=["prt", "kernels", "spectral", "screen", "lpv"])
+    v.add_argument("--lpv-steps", type=int, default=16, help="lpv: propagation steps per frame (default 16)")
     v.add_argument("--light-dir", help="x,y,z world direction towards a directional light (default 0.4,0.8,0.45)")
     v.add_argument("--light-pos", help="x,y,z world position of a point light instead (unit irradiance at the "
                                        "objects' centre)")
@@ -315,27 +336,29 @@ def build_parser() -> argparse.ArgumentParser:
 
     # the kernels and screen tradeoffs' defaults, for the help; the sweeps run only on `tradeoff`
     from .kernels_tradeoff import DEFAULT_RESOLUTION, RESOLUTIONS, SIZES, THRESHOLDS
+    from .lpv_tradeoff import RESOLUTIONS as LPV_RESOLUTIONS, STEPS as LPV_STEPS
     from .screen_tradeoff import SAMPLES, UNIFORM
 
     t = sub.add_parser("tradeoff", help="sweep a technique's knobs: image RMSE vs bytes per vertex and seconds")
     t.add_argument("input", help="a mesh file (the largest mesh is used)")
-    t.add_argument("--technique", default="prt", choices=["prt", "kernels", "spectral", "screen"])
+    t.add_argument("--technique", default="prt", choices=["prt", "kernels", "spectral", "screen", "lpv"])
     t.add_argument("--material", default=BAKE_DEFAULTS.material, help="preset name (default marble)")
     t.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
     t.add_argument("--k", type=int, default=BAKE_DEFAULTS.prt_directions,
                    help="prt: directions for the compression sweeps")
     t.add_argument("--atlas-resolution", type=int, default=DEFAULT_RESOLUTION,
                    help=f"kernels: atlas resolution of the default configuration (default {DEFAULT_RESOLUTION})")
-    t.add_argument("--resolutions", type=_numbers(int), default=RESOLUTIONS,
-                   help=f"kernels: atlas resolutions swept (default {','.join(map(str, RESOLUTIONS))})")
-    t.add_argument("--sizes", type=_numbers(int), default=SIZES,
-                   help=f"kernels: kernel sizes swept (default {','.join(map(str, SIZES))})")
-    t.add_argument("--thresholds", type=_numbers(float), default=THRESHOLDS,
-                   help=f"kernels: F thresholds swept (default {','.join(map(str, THRESHOLDS))})")
-    t.add_argument("--samples", type=_numbers(int), default=SAMPLES,
-                   help=f"screen: importance samples N swept (default {','.join(map(str, SAMPLES))})")
-    t.add_argument("--uniform", type=_numbers(int), default=UNIFORM,
-                   help=f"screen: uniform samples U swept (default {','.join(map(str, UNIFORM))})")
+    for flag, kind, default, what in (("--resolutions", int, RESOLUTIONS, "kernels: atlas resolutions swept"),
+                                      ("--sizes", int, SIZES, "kernels: kernel sizes swept"),
+                                      ("--thresholds", float, THRESHOLDS, "kernels: F thresholds swept"),
+                                      ("--samples", int, SAMPLES, "screen: importance samples N swept"),
+                                      ("--uniform", int, UNIFORM, "screen: uniform samples U swept"),
+                                      ("--lpv-resolutions", int, LPV_RESOLUTIONS, "lpv: grid resolutions swept"),
+                                      ("--lpv-steps", int, LPV_STEPS, "lpv: propagation steps swept")):
+        t.add_argument(flag, type=_numbers(kind), default=default,
+                       help=f"{what} (default {','.join(map(str, default))})")
+    t.add_argument("--lpv-field", choices=["homogeneous", "marble"], default="homogeneous",
+                   help="lpv: the medium; marble veins are compared with the finest configuration")
     t.add_argument("--reference-subdivisions", type=int, default=0,
                    help="screen: midpoint subdivisions of the surface the per-vertex reference is computed on "
                         "(the technique shades per pixel; default 0)")

@@ -6,6 +6,9 @@ from dataclasses import asdict, dataclass, fields, replace
 
 from .kernels_layout import KERNEL_BITS
 from .kernels_precompute import KERNELS_DEFAULTS, KernelsOptions
+from .lpv_grid import LPV_GRID_DEFAULTS, LpvGridOptions
+from .lpv_stage import FIELDS as LPV_FIELDS
+from .marble_field import MARBLE_DEFAULTS, MarbleOptions
 from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, TABLES, WEIGHT_BITS, WEIGHTS
 from .scatter_operator import SCATTER_DEFAULTS
 from .screen_samples import SCREEN_DEFAULTS, ScreenOptions
@@ -14,7 +17,9 @@ from .spectral_precompute import SPECTRAL_DEFAULTS, SpectralOptions
 
 OPAQUE = "opaque"
 #: Techniques `bake` can run.
-TECHNIQUES = ("prt", "kernels", "spectral", "screen")
+TECHNIQUES = ("prt", "kernels", "spectral", "screen", "lpv")
+#: Step counts the lpv rendering's scale is tabulated for by default (the runtime may use 1..this).
+LPV_MAX_STEPS = 64
 
 
 @dataclass(frozen=True)
@@ -64,6 +69,16 @@ class BakeOptions:
     screen_samples, screen_uniform, screen_table_error
         screen precompute (see `screen_samples.ScreenOptions`): importance-sampled and uniform
         offsets, bound on the Rd table's relative interpolation error.
+    lpv_resolution, lpv_padding, lpv_supersample
+        lpv grid (see `lpv_grid.LpvGridOptions`): cells along the longest side, empty cells
+        around, occupancy samples per cell side.
+    lpv_field : str
+        lpv medium: ``"homogeneous"`` (the material everywhere) or ``"marble"`` (veins through it,
+        `marble_field`).
+    lpv_vein_mm : float
+        lpv marble: spacing of the veins, mm.
+    lpv_max_steps : int
+        lpv: the rendering's scale is tabulated for 1 .. this many propagation steps.
     """
 
     material: str | dict = "marble"
@@ -102,6 +117,12 @@ class BakeOptions:
     screen_samples: int = SCREEN_DEFAULTS.samples
     screen_uniform: int = SCREEN_DEFAULTS.uniform
     screen_table_error: float = SCREEN_DEFAULTS.table_error
+    lpv_resolution: int = LPV_GRID_DEFAULTS.resolution
+    lpv_padding: int = LPV_GRID_DEFAULTS.padding
+    lpv_supersample: int = LPV_GRID_DEFAULTS.supersample
+    lpv_field: str = "homogeneous"
+    lpv_vein_mm: float = MARBLE_DEFAULTS.vein_mm
+    lpv_max_steps: int = LPV_MAX_STEPS
 
     def kernels(self) -> KernelsOptions:
         return KernelsOptions(self.kernels_size, self.kernels_threshold, self.kernels_blend, self.kernels_seams,
@@ -113,6 +134,12 @@ class BakeOptions:
 
     def screen(self) -> ScreenOptions:
         return ScreenOptions(self.screen_samples, self.screen_uniform, self.screen_table_error)
+
+    def lpv_grid(self) -> LpvGridOptions:
+        return LpvGridOptions(self.lpv_resolution, self.lpv_padding, self.lpv_supersample)
+
+    def lpv_marble(self) -> MarbleOptions:
+        return MarbleOptions(vein_mm=self.lpv_vein_mm)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -172,6 +199,12 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"kernels_bits must be one of {list(KERNEL_BITS)}, got {o.kernels_bits!r}")
     o.spectral().check()
     o.screen().check()
+    o.lpv_grid().check()
+    o.lpv_marble().check()
+    if o.lpv_field not in LPV_FIELDS:
+        raise ValueError(f"lpv_field must be one of {list(LPV_FIELDS)}, got {o.lpv_field!r}")
+    if not (isinstance(o.lpv_max_steps, int) and 1 <= o.lpv_max_steps <= 1024):
+        raise ValueError(f"lpv_max_steps must be a whole number in [1, 1024], got {o.lpv_max_steps!r}")
     for name in ("spectral_variant", "spectral_basis"):
         if not isinstance(getattr(o, name), bool):
             raise ValueError(f"{name} must be true or false, got {getattr(o, name)!r}")

@@ -1,6 +1,6 @@
 """The reference runtime: renders meshes with the shipped GLSL, headless (moderngl on EGL).
 
-Five kinds of draw, told apart by the keys of an item (see `Renderer.render`):
+Six kinds of draw, told apart by the keys of an item (see `Renderer.render`):
 
 - ``prt``: ``prt.vert`` decodes the exported prt data on the GPU per vertex;
 - ``q``: ``vertex_q.vert`` takes scattered radiance computed per vertex elsewhere (the offline
@@ -11,6 +11,9 @@ Five kinds of draw, told apart by the keys of an item (see `Renderer.render`):
 - ``screen``: the screen technique, whose offscreen passes (`screen_runtime`: shadow map,
   G-buffer from the camera, gather) run every frame before ``screen_surface.frag`` reads B per
   pixel;
+- ``lpv``: the lpv technique, whose offscreen passes (`lpv_runtime`: reflective shadow map,
+  injection, propagation and accumulation over the flattened grid) run every frame before
+  ``lpv_surface.frag`` reads the accumulated intensity per pixel;
 - ``albedo``: ``plain.vert``/``plain.frag``, Lambert plus specular without scattering (the
   baseline of frame times).
 
@@ -28,6 +31,8 @@ import numpy as np
 from .kernels_data import KernelsData
 from .kernels_runtime import KernelsPasses
 from .prt_data import PrtData
+from .lpv_data import LpvGrid
+from .lpv_runtime import LpvPasses
 from .screen_data import ScreenSamples
 from .screen_runtime import ScreenPasses, ScreenRuntimeOptions
 from .prt_runtime import TABLE_WIDTH, per_vertex_arrays, shader_defines, upload
@@ -37,7 +42,7 @@ from .shaders import DIALECTS, shader_source
 #: Vertex and fragment stage of each kind of draw.
 PROGRAMS = {"prt": ("prt.vert", "sss_surface.frag"), "q": ("vertex_q.vert", "sss_surface.frag"),
             "kernels": ("kernels_surface.vert", "kernels_surface.frag"), "screen": ("plain.vert", "screen_surface.frag"),
-            "albedo": ("plain.vert", "plain.frag")}
+            "lpv": ("plain.vert", "lpv_surface.frag"), "albedo": ("plain.vert", "plain.frag")}
 #: Largest tan(half field of view) of a point light's shadow map (80°): a light inside or at the
 #: item's bounding sphere sees only this cone, points outside it count as lit.
 MAX_SHADOW_TAN = float(np.tan(np.radians(80.0)))
@@ -91,7 +96,7 @@ def fit_camera(positions: np.ndarray, view_dir=(0.3, -0.4, -1.0), fov_degrees: f
     return Camera(tuple(eye), _perspective(tan_half, aspect, near, far) @ _look_at(eye, forward))
 
 
-def light_camera(positions: np.ndarray, light: RenderLight) -> tuple[np.ndarray, float]:
+def light_camera(positions: np.ndarray, light: RenderLight) -> tuple[np.ndarray, float, float]:
     """The view-projection of a shadow map of `light` over the bounding sphere of `positions`.
 
     Directional light: orthographic along the light. Point light: perspective from the light
@@ -108,6 +113,8 @@ def light_camera(positions: np.ndarray, light: RenderLight) -> tuple[np.ndarray,
         Row-major, world to clip space.
     extent : float
         World width the map spans at the sphere's centre (one shadow texel is extent / size).
+    tan_half : float
+        A point light's tan(half field of view), 0 for a directional light.
     """
     centre, radius = _bounding_sphere(np.asarray(positions, dtype=np.float64))
     radius *= 1.01  # points on the sphere stay inside the frustum despite rounding
@@ -117,7 +124,7 @@ def light_camera(positions: np.ndarray, light: RenderLight) -> tuple[np.ndarray,
         view = _look_at(centre - 2.0 * radius * forward, forward)
         ortho = np.diag([1.0 / radius, 1.0 / radius, -1.0 / radius, 1.0])
         ortho[2, 3] = -2.0  # depth: distances radius .. 3 radius to -1 .. 1
-        return ortho @ view, 2.0 * radius
+        return ortho @ view, 2.0 * radius, 0.0
     offset = centre - vector
     distance = float(np.linalg.norm(offset))
     forward = offset / distance if distance > 0 else np.array([0.0, 0.0, -1.0])
@@ -125,7 +132,7 @@ def light_camera(positions: np.ndarray, light: RenderLight) -> tuple[np.ndarray,
     tan_half = min(radius / np.sqrt(gap), MAX_SHADOW_TAN) if gap > 0 else MAX_SHADOW_TAN
     near, far = max(distance - radius, 1e-3 * radius), distance + radius
     projection = _perspective(tan_half, 1.0, near, far) @ _look_at(vector, forward)
-    return projection, 2.0 * max(distance, radius) * tan_half
+    return projection, 2.0 * max(distance, radius) * tan_half, float(tan_half)
 
 
 def _bounding_sphere(positions: np.ndarray) -> tuple[np.ndarray, float]:
@@ -242,7 +249,9 @@ class Renderer:
             surface vertex of each render vertex (its shadow map holds the item's own triangles),
             ``screen`` (`ScreenSamples`) with ``mm_per_unit`` (mm per object unit) and optionally
             ``screen_runtime`` (`ScreenRuntimeOptions`); its G-buffer and shadow map hold the
-            item alone.
+            item alone; ``lpv`` (`LpvGrid`, in the item's object frame) with ``lpv_matrices``
+            (6, 4, 4), ``lpv_scales`` (S, 3) and optionally ``lpv_steps`` and
+            ``lpv_shadow_size`` (`lpv_propagate.LpvOptions`).
         specular : float
             Weight of the surface's specular reflection (Fresnel reflectance 1 - F_t times a
             normalised Blinn-Phong lobe of exponent `shininess`).
@@ -367,14 +376,45 @@ class Renderer:
     def _kernels_passes(self, item: dict, light: RenderLight) -> KernelsPasses:
         model = np.asarray(item["model"], dtype=np.float64)
         world = np.asarray(item["positions"], dtype=np.float64) @ model[:3, :3].T + model[:3, 3]
-        view_projection, extent = light_camera(world, light)
+        view_projection, extent, _ = light_camera(world, light)
         return KernelsPasses(self.ctx, self._program, item, light, view_projection, extent, self.fbo,
                              self.table_width, self.shadow_size)
+
+    def lpv_passes(self, item: dict, light: RenderLight, injected: np.ndarray | None = None) -> dict:
+        """Run the offscreen passes of an lpv item once and read their grids back.
+
+        Parameters
+        ----------
+        item : dict
+            A render item with ``lpv`` (see `render`).
+        injected : (nz, ny, nx, 4) float, optional
+            Injected lobes to propagate instead of the shadow map's.
+
+        Returns
+        -------
+        dict
+            ``injected`` (nz, ny, nx, 4) and ``accumulated`` (nz, ny, nx, 3, 4) float32
+            (`LpvPasses.read`).
+        """
+        if _check_item(0, item) != "lpv":
+            raise ValueError("render: lpv_passes needs an item with lpv")
+        passes = self._lpv_passes(item, light)
+        try:
+            passes.run(injected)
+            return passes.read()
+        finally:
+            passes.release()
+
+    def _lpv_passes(self, item: dict, light: RenderLight) -> LpvPasses:
+        model = np.asarray(item["model"], dtype=np.float64)
+        world = np.asarray(item["positions"], dtype=np.float64) @ model[:3, :3].T + model[:3, 3]
+        view_projection, extent, tan_half = light_camera(world, light)
+        return LpvPasses(self.ctx, self._program, item, light, view_projection, extent, tan_half, self.fbo)
 
     def _screen_passes(self, item: dict, camera: Camera, light: RenderLight) -> ScreenPasses:
         model = np.asarray(item["model"], dtype=np.float64)
         world = np.asarray(item["positions"], dtype=np.float64) @ model[:3, :3].T + model[:3, 3]
-        view_projection, extent = light_camera(world, light)
+        view_projection, extent, _ = light_camera(world, light)
         return ScreenPasses(self.ctx, self._program, item, light, view_projection, extent, camera, self.size,
                             self.fbo, self.shadow_size)
 
@@ -402,13 +442,17 @@ class Renderer:
             textures = upload(self.ctx, program, item["prt"], width=self.table_width)
         elif kind == "q":
             extra = [(np.asarray(item["q"], np.float32), "3f", "in_q")]
-        elif kind in ("kernels", "screen"):
+        elif kind in ("kernels", "screen", "lpv"):
             if kind == "kernels":
                 passes = self._kernels_passes(item, light)
                 extra = [(np.asarray(item["uvs"], np.float32), "2f", "in_uv"),
                          *passes.surface_attributes(item["vertex_ids"])]
-            else:
+            elif kind == "screen":
                 passes = self._screen_passes(item, camera, light)
+            else:
+                passes = self._lpv_passes(item, light)
+                for name, value in passes.surface_uniforms.items():
+                    program[name].value = value
             for unit, (name, texture) in enumerate(passes.surface_textures.items()):
                 if name in program:
                     program[name].value = unit
@@ -416,7 +460,7 @@ class Renderer:
         linear = np.asarray(item["model"], dtype=np.float64)[:3, :3]
         to_object = np.linalg.inv(linear)
         matrices = {"u_model": item["model"], "u_view_projection": camera.view_projection,
-                    "u_normal_matrix": to_object.T, "u_world_to_object": to_object}
+                    "u_normal_matrix": to_object.T, "u_world_to_object": to_object, "u_object_normal": linear.T}
         for name, matrix in matrices.items():
             if name in program:  # GLSL matrices are column-major
                 program[name].write(np.asarray(matrix, dtype=np.float32).T.tobytes())
@@ -448,7 +492,7 @@ class _Draw:
     (several items may share a program, so each draw restores its own), and the offscreen passes
     to run first (`KernelsPasses`, `ScreenPasses`: they bind the target framebuffer again)."""
 
-    def __init__(self, program, vao, textures, buffers, passes: KernelsPasses | ScreenPasses | None = None):
+    def __init__(self, program, vao, textures, buffers, passes: KernelsPasses | ScreenPasses | LpvPasses | None = None):
         import moderngl
 
         self.program, self.vao, self.textures, self.buffers, self.passes = program, vao, textures, buffers, passes
@@ -500,7 +544,24 @@ def _check_item(i: int, item: dict) -> str:
         _check_kernels(i, item, n)
     if kinds[0] == "screen":
         _check_screen(i, item)
+    if kinds[0] == "lpv":
+        _check_lpv(i, item)
     return kinds[0]
+
+
+def _check_lpv(i: int, item: dict) -> None:
+    """The grid, matrices and scales of lpv item `i`."""
+    grid = item["lpv"]
+    if not isinstance(grid, LpvGrid):
+        raise ValueError(f"render: item {i}: lpv must be LpvGrid, got {type(grid).__name__}")
+    try:
+        grid.check()
+    except ValueError as error:
+        raise ValueError(f"render: item {i}: {error}") from None
+    matrices, scales = np.asarray(item.get("lpv_matrices")), np.asarray(item.get("lpv_scales"))
+    if matrices.shape != (6, 4, 4) or scales.ndim != 2 or scales.shape[1] != 3 or not len(scales):
+        raise ValueError(f"render: item {i}: lpv needs lpv_matrices (6, 4, 4) and lpv_scales (S, 3), got "
+                         f"{matrices.shape} and {scales.shape}")
 
 
 def _check_screen(i: int, item: dict) -> None:

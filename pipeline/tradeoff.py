@@ -68,9 +68,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
         visible = direction_visibility(surface.positions, surface.faces, surface.normals, directions)
         return operator.apply(irradiance_signal(surface.normals, directions, visible, material.eta))
 
-    rng = np.random.default_rng(seed)
-    test = rng.normal(size=(lights, 3))
-    test /= np.linalg.norm(test, axis=1, keepdims=True)
+    test = random_lights(lights, seed)
     exact = gather(test)  # (3, n, lights)
 
     renderer = Renderer((size, size))
@@ -175,6 +173,13 @@ def tradeoff_result(technique: str, path: Path, out_dir: str | os.PathLike, rows
     return result
 
 
+def random_lights(lights: int, seed: int) -> np.ndarray:
+    """(lights, 3) float64 random unit directions towards the test lights (seeded)."""
+    rng = np.random.default_rng(seed)
+    test = rng.normal(size=(lights, 3))
+    return test / np.linalg.norm(test, axis=1, keepdims=True)
+
+
 def reference_lights(surface, mm_per_unit: float, material: Material, lights: int,
                      seed: int) -> tuple[np.ndarray, list[np.ndarray]]:
     """The test lights of the technique tradeoffs and the offline reference under each.
@@ -192,9 +197,7 @@ def reference_lights(surface, mm_per_unit: float, material: Material, lights: in
         `reference.reference_scattering` per light: the exact sum, or through clusters above
         `CLUSTERED_ABOVE` vertices.
     """
-    rng = np.random.default_rng(seed)
-    test = rng.normal(size=(lights, 3))
-    test /= np.linalg.norm(test, axis=1, keepdims=True)
+    test = random_lights(lights, seed)
     clustered = len(surface.positions) > CLUSTERED_ABOVE
     return test, [reference_scattering(surface, mm_per_unit, material, Light("directional", tuple(d)),
                                        clustered=clustered) for d in test]

@@ -24,6 +24,7 @@ import numpy as np
 import pygltflib
 
 from ..exporters.read_kernels import read_kernels_glb
+from ..exporters.read_lpv import read_lpv_glb
 from ..exporters.read_prt import read_prt_glb
 from ..exporters.read_screen import read_screen_glb
 from ..exporters.read_spectral import read_spectral_glb
@@ -33,18 +34,19 @@ from .scene import Primitive
 from .materials import Material
 from .naive_normals import naive_normals
 from .reference import Light, reference_scattering
+from .lpv_propagate import LPV_DEFAULTS
 from .spectral_precompute import SPECTRAL_DEFAULTS, naive_parameters
 from .visibility import direction_visibility, point_visibility
 
-TECHNIQUES = ("prt", "kernels", "spectral", "screen")
+TECHNIQUES = ("prt", "kernels", "spectral", "screen", "lpv")
 READERS = {"prt": read_prt_glb, "kernels": read_kernels_glb, "spectral": read_spectral_glb,
-           "screen": read_screen_glb}
+           "screen": read_screen_glb, "lpv": read_lpv_glb}
 #: A technique's bytes per vertex from its block of the bake report (spectral: the normal per
 #: render vertex plus the optional re-filtering tables per vertex; screen: nothing per vertex, its
-#: tables are per material).
+#: tables are per material; lpv: nothing per vertex, its grid is per mesh).
 BYTES_PER_VERTEX = {"prt": lambda r: r["bytesPerVertex"]["total"], "kernels": lambda r: r["bytes"]["perVertex"],
                     "spectral": lambda r: r["bytes"]["perVertex"] + r["bytes"]["normalPerRenderVertex"],
-                    "screen": lambda r: 0.0}
+                    "screen": lambda r: 0.0, "lpv": lambda r: 0.0}
 #: A screen pixel whose gather found less than this share of Rd's integral on the surface counts
 #: as missing surface (silhouettes, occluders, the image's edge).
 LOW_SHARE = 0.9
@@ -56,7 +58,7 @@ PLAIN_ALBEDO = (0.8, 0.8, 0.8)
 
 def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT, size: int = 512,
                 out_dir: str | os.PathLike | None = None, frames: int = 20, light_pos=None,
-                reference_sum: str = "exact") -> dict:
+                reference_sum: str = "exact", lpv_steps: int = LPV_DEFAULTS.steps) -> dict:
     """Render `path` (.glb) with `technique`'s runtime and with the offline reference.
 
     Parameters
@@ -70,6 +72,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         ``"exact"`` (every pair) or ``"clustered"`` (far sources through float64 clusters, ~1e-3
         of q; for meshes of 100k+ vertices, where the exact sum takes hours; see
         `reference.reference_scattering`).
+    lpv_steps : int
+        lpv: propagation steps per frame.
     size : int
         Image width and height in pixels.
     out_dir : path, optional
@@ -87,7 +91,9 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         material with the precompute's defaults). Spectral's ``frame_ms_sss`` is the plain
         shader's with the subsurface normals. Screen also reports where screen space misses light
         (`screen_misses`): ``low_share_pixels``, ``missed_share``, ``missed_share_unlit``,
-        ``missed_share_low_share``, ``bytes_per_material``.
+        ``missed_share_low_share``, ``bytes_per_material``; lpv reports where light leaks
+        (`lpv_leaks`): ``excess_share``, ``excess_share_unlit``, ``thin_cells``, ``lpv_steps``,
+        ``bytes_per_mesh``.
     """
     from .image_metrics import (best_fit_scale, rmse, shared_exposure, write_comparison_png,
                                 write_difference_png)
@@ -168,6 +174,10 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
             sss_items.append({**base, "prt": data[(mi, unit[0])]})
         elif technique == "screen":
             sss_items.append({**base, "screen": data[(mi, unit[0])], "mm_per_unit": mm})
+        elif technique == "lpv":
+            grid, matrices, scales = data[(mi, unit[0])]
+            sss_items.append({**base, "lpv": grid, "lpv_matrices": matrices, "lpv_scales": scales,
+                              "lpv_steps": lpv_steps})
         elif technique == "kernels":
             kernels = data[(mi, unit[0])][0]
             sss_items.append({**base, "kernels": kernels, "uvs": prim.uvs[-1],
@@ -210,6 +220,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
                  "rmse_object_naive": rmse(naive, reference, exposure, ref_mask)}
     elif technique == "screen":
         extra = screen_misses(renderer, sss_items, camera, light, image, reference, ref_mask | mask, shown[2] > 0)
+    elif technique == "lpv":
+        extra = lpv_leaks(sss_items, image, reference, ref_mask | mask, shown[2] > 0)
 
     out_dir = Path(out_dir) if out_dir is not None else path.parent
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -284,6 +296,33 @@ def screen_misses(renderer, items: list[dict], camera, light, image: np.ndarray,
             "missed_share_unlit": float(missing[mask & ~lit].sum() / total),
             "missed_share_low_share": float(missing[low].sum() / total),
             "bytes_per_material": int(4 * (samples.offsets.size + samples.weights.size + samples.table.size))}
+
+
+def lpv_leaks(items: list[dict], image: np.ndarray, reference: np.ndarray, mask: np.ndarray,
+              lit: np.ndarray) -> dict:
+    """Where the lpv technique's image has light the reference does not, and how coarse its grids
+    are; `items` are the lpv render items, the other parameters as `screen_misses`'.
+
+    Returns
+    -------
+    dict
+        ``excess_share``: Σ max(image - reference, 0) / Σ reference over the object's pixels;
+        ``excess_share_unlit``: its part at pixels the light does not reach directly (light that
+        crossed the grid, through the object or across a gap the grid's cells bridge);
+        ``thin_cells``: the share of the first grid's cells with medium that are mostly outside the
+        surface (occupancy < 0.5: where cells bridge thin gaps); ``lpv_steps``; ``bytes_per_mesh``
+        (the first grid's float32 tables).
+    """
+    lit = lit.any(axis=-1) if lit.ndim == 3 else lit
+    excess = np.maximum(image - reference, 0.0).sum(axis=-1)
+    total = max(float(reference[mask].sum()), 1e-300)
+    grid = items[0]["lpv"]
+    medium = grid.occupancy > 0
+    return {"excess_share": float(excess[mask].sum() / total),
+            "excess_share_unlit": float(excess[mask & ~lit].sum() / total),
+            "thin_cells": float(np.mean(grid.occupancy[medium] < 0.5)) if medium.any() else 0.0,
+            "lpv_steps": int(items[0]["lpv_steps"]),
+            "bytes_per_mesh": int(4 * (grid.occupancy.size * 10 + 6 * 16 + items[0]["lpv_scales"].size))}
 
 
 def default_naive_normals(surface: Surface, mm_per_unit: float, material: Material) -> np.ndarray:

@@ -4,7 +4,7 @@ Every sample is made here from closed forms, so the repository ships no third-pa
 - sphere.obj     icosphere, radius 10 units (the config says 1 mm per unit: a 20 mm marble ball)
 - torus.ply      torus, radii 12 and 4 units
 - thin_slab.stl  40 × 40 × 2 unit slab (thickness known exactly), skin
-- blob.obj       bumpy closed blob, radius ≈ 15 units
+- blob.obj       bumpy closed blob, radius ≈ 15 units (baked as veined marble with the lpv technique)
 - candle.glb     two meshes, two materials (translucent "Wax" body, opaque "Brass" holder), node
                  transforms, in metres as glTF declares
 - sssbake.toml   the batch config that maps them to materials and scales
@@ -39,6 +39,12 @@ material = { albedo = [0.55, 0.75, 0.6], mean_free_path_mm = [1.5, 2.5, 1.8], et
 [[assets]]
 glob = "candle.glb"
 scale_mm = 1000.0         # glTF is in metres
+
+[[assets]]
+glob = "blob.obj"         # veined marble: an lpv grid whose absorption follows procedural veins
+techniques = ["lpv"]
+lpv_field = "marble"
+lpv_vein_mm = 8.0
 
 [materials]
 "Wax*" = { albedo = [0.88, 0.8, 0.62], mean_free_path_mm = [2.0, 1.4, 0.8], eta = 1.45 }

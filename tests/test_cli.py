@@ -35,6 +35,9 @@ def test_samples_bake_clean(baked_samples):
         assert report["stages"]["simplify"]["skipped"]
     slab = json.loads((out / "thin_slab.report.json").read_text())
     assert slab["materials"]["sssbake_default"]["scattering"]["name"] == "skin1"
+    # the heterogeneous sample: veined marble, an lpv grid whose absorption varies
+    (veined,) = json.loads((out / "blob.report.json").read_text())["lpv"].values()
+    assert veined["field"] == "marble" and veined["cellsWithMedium"] > 0
     candle = json.loads((out / "candle.report.json").read_text())
     assert candle["materials"]["Brass"]["scattering"] is None
     assert candle["materials"]["Wax"]["reason"].startswith("material name matches")

@@ -8,6 +8,7 @@ import pytest
 from sssbake.pipeline.directions import octahedral_texel
 from sssbake.pipeline.fresnel import fresnel_transmittance, schlick_transmittance
 from sssbake.pipeline.kernels_runtime import PASS_PROGRAMS as KERNELS_PASSES
+from sssbake.pipeline.lpv_runtime import PASS_PROGRAMS as LPV_PASSES
 from sssbake.pipeline.render import PROGRAMS
 from sssbake.pipeline.screen_runtime import PASS_PROGRAMS as SCREEN_PASSES
 from sssbake.pipeline.sh import sh_basis
@@ -43,7 +44,7 @@ def test_every_program_compiles_and_links(ctx, kind, dialect):
     assert "in_position" in program and "u_view_projection" in program
 
 
-OFFSCREEN = sorted({pair for passes in (KERNELS_PASSES, SCREEN_PASSES) for pair in passes.values()})
+OFFSCREEN = sorted({pair for passes in (KERNELS_PASSES, SCREEN_PASSES, LPV_PASSES) for pair in passes.values()})
 
 
 @pytest.mark.parametrize("dialect", DIALECTS)
