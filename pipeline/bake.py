@@ -34,7 +34,7 @@ from .prt_compress import PrtCompressOptions
 from .prt_layout import prt_tables, prt_vertex_attributes
 from .prt_stage import bake_prt
 from .screen_stage import bake_screen
-from .lpv_stage import bake_lpv
+from .lpv_stage import LPV_COARSE, bake_lpv
 from .scene import Image, Mesh, Scene, SourceMaterial, Texture, TextureRef
 from .spectral_layout import normals_variant, spectral_vertex_attributes
 from .spectral_stage import bake_spectral
@@ -45,9 +45,7 @@ from .thickness_map import bake_thickness_map
 # Bump a stage's version when its output for the same input changes.
 STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
                   "spectral": 1, "screen": 1, "lpv": 1}
-#: Above this diffusion decay per lpv cell (σ_tr Δx) the bake warns: measured on a skin ball, image
-#: RMSE 0.05 at 1.8 (32³), 0.13 at 3.6 (16³), 0.35 at 4.8 (12³).
-LPV_COARSE = 2.0
+
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
 
@@ -130,7 +128,7 @@ def _split_shared_materials(scene: Scene, translucent: set[int]) -> tuple[Scene,
                         materials.append(replace(scene.materials[m], name=f"{scene.materials[m].name}.{mesh.name}"))
                     m = local[m]
             prims.append(replace(p, material=m) if m != p.material else p)
-        meshes.append(Mesh(mesh.name, tuple(prims)))
+        meshes.append(Mesh(mesh.name, tuple(prims), mesh.deforming))
     return replace(scene, meshes=tuple(meshes), materials=tuple(materials)), origin
 
 
@@ -188,17 +186,9 @@ def bake_asset(
     translucent = {i for i, m in assignment.materials.items() if m is not None}
     scene, origin = _split_shared_materials(assignment.scene, translucent)
     material_of = {i: assignment.materials.get(o) for i, o in enumerate(origin)}
-    if "prt" not in options.techniques:
-        runner.skip("simplify", "no technique that needs reference points was requested")
-        runner.skip("prt", "not requested (--techniques prt)")
-    if "kernels" not in options.techniques:
-        runner.skip("kernels", "not requested (--techniques kernels)")
-    if "spectral" not in options.techniques:
-        runner.skip("spectral", "not requested (--techniques spectral)")
-    if "screen" not in options.techniques:
-        runner.skip("screen", "not requested (--techniques screen)")
-    if "lpv" not in options.techniques:
-        runner.skip("lpv", "not requested (--techniques lpv)")
+    auto = "auto" in options.techniques
+    plan: list = []  # the planner's entries (--techniques auto)
+    used: set[str] = set()  # techniques some mesh or material ran
     mesh_extras: dict[int, dict] = {}
     prt_reports: dict[str, dict] = {}
     kernels_reports: dict[str, dict] = {}
@@ -249,8 +239,20 @@ def bake_asset(
             bake_thickness_map, atlas, [(p.positions, p.normals) for p in mesh.primitives], surface, cap,
             options.thickness_rays, options.atlas_padding,
         )
+        if auto:
+            from .plan import decide  # plan reads the bake's helpers: imported here, not at the top
+
+            entries = [decide(str(path), mesh.name, scene.materials[m].name, material_of[m], mesh.deforming, options,
+                              diag_mm, float(np.ptp(surface.positions, axis=0).max()) * mesh_mm,
+                              float(np.median(thick.thickness)) * mesh_mm) for m in mats]
+            plan += entries
+            techniques = {t for e in entries for t in e.techniques}
+            mesh_options = options.merged({k: v for e in entries for k, v in e.params.items()})
+        else:
+            techniques, mesh_options = set(options.techniques), options
+        used |= techniques
         prt = None
-        if "prt" in options.techniques:
+        if "prt" in techniques:
             _one_material("prt", mesh, mats, scene, warnings)
             compress = PrtCompressOptions(options.prt_mode, options.prt_reference_fraction, options.prt_sh_order,
                                           options.prt_weights, tables=options.prt_tables,
@@ -269,7 +271,7 @@ def bake_asset(
             mesh_extras.setdefault(mi, {})["prt"] = prt_tables(prt)
             prt_reports[mesh.name] = baked.report
         kernels = None
-        if "kernels" in options.techniques:
+        if "kernels" in techniques:
             _one_material("kernels", mesh, mats, scene, warnings)
             if options.atlas_padding < (options.kernels_size + 1) // 2:
                 warnings.append(f"mesh {mesh.name!r}: atlas_padding {options.atlas_padding} is below the "
@@ -286,7 +288,7 @@ def bake_asset(
             mesh_extras.setdefault(mi, {})["kernels"] = kernels_tables(kernels, options.kernels_bits)
             kernels_reports[mesh.name] = baked_k.report
         spectral = None
-        if "spectral" in options.techniques:
+        if "spectral" in techniques:
             _one_material("spectral", mesh, mats, scene, warnings)
             # Keyed on the mesh, not the atlas: the normals live on the welded surface's vertices.
             spectral, _ = runner.run(
@@ -298,22 +300,23 @@ def bake_asset(
             if spectral.tables is not None:
                 mesh_extras.setdefault(mi, {})["spectral"] = spectral.tables
             spectral_reports[mesh.name] = spectral.report
-        if "lpv" in options.techniques:
+        if "lpv" in techniques:
             _one_material("lpv", mesh, mats, scene, warnings)
             # Keyed on the mesh: the grid depends on the welded surface, not on the atlas.
             baked_l, _ = runner.run(
                 "lpv", STAGE_VERSIONS["lpv"], mesh_key,
-                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "grid": options.lpv_grid().__dict__,
-                 "field": options.lpv_field, "marble": options.lpv_marble().__dict__, "steps": options.lpv_max_steps},
-                bake_lpv, surface, mesh_mm, material_of[mats[0]], options.lpv_grid(), options.lpv_field,
-                options.lpv_marble(), options.lpv_max_steps,
+                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "grid": mesh_options.lpv_grid().__dict__,
+                 "field": mesh_options.lpv_field, "marble": mesh_options.lpv_marble().__dict__,
+                 "steps": mesh_options.lpv_max_steps},
+                bake_lpv, surface, mesh_mm, material_of[mats[0]], mesh_options.lpv_grid(), mesh_options.lpv_field,
+                mesh_options.lpv_marble(), mesh_options.lpv_max_steps,
             )
             mesh_extras.setdefault(mi, {})["lpv"] = baked_l.tables
             lpv_reports[mesh.name] = baked_l.report
             coarse = max(baked_l.report["decayPerCell"])
             if coarse > LPV_COARSE:
                 # light then barely leaves its cell: the calibrated radiance amplifies the error
-                need = int(np.ceil(options.lpv_resolution * coarse / LPV_COARSE))
+                need = int(np.ceil(mesh_options.lpv_resolution * coarse / LPV_COARSE))
                 warnings.append(f"mesh {mesh.name!r}: lpv cells of {baked_l.report['cellMm']:.3g} mm are wider than "
                                 f"the material's diffusion length (sigma_tr * cell = {coarse:.2g}); pass "
                                 f"--lpv-resolution {need} or more")
@@ -353,8 +356,13 @@ def bake_asset(
 
     material_extras: dict[int, dict] = {}
     screen_reports: dict[str, dict] = {}
-    if "screen" in options.techniques:
-        for m, s in sorted(scattering.items()):
+    # auto: screen for the materials the plan gave it
+    screened = ({m for m in scattering if any(e.material == scene.materials[m].name and "screen" in e.techniques
+                                              for e in plan)} if auto else
+                set(scattering) if "screen" in options.techniques else set())
+    if screened:
+        used.add("screen")
+        for m, s in sorted((m, s) for m, s in scattering.items() if m in screened):
             # Per material, no mesh data: keyed on the material and the options alone.
             baked_s, _ = runner.run("screen", STAGE_VERSIONS["screen"], "material",
                                     {"material": s.material.to_json(), "options": options.screen().__dict__},
@@ -363,6 +371,12 @@ def bake_asset(
             name = scene.materials[m].name
             screen_reports[name if name not in screen_reports else f"{name}#{m}"] = baked_s.report
 
+    for t in ("prt", "kernels", "spectral", "screen", "lpv"):
+        if t not in used:
+            if t == "prt":
+                runner.skip("simplify", "no technique that needs reference points ran")
+            runner.skip(t, "the plan chose it for no object (--techniques auto)" if auto
+                        else f"not requested (--techniques {t})")
     baked_scene = replace(scene, meshes=tuple(meshes), images=tuple(images), textures=tuple(textures))
     extras = {
         "scaleMmPerUnit": mm_per_unit,
@@ -408,6 +422,7 @@ def bake_asset(
             "spectral": spectral_reports,
             "screen": screen_reports,
             "lpv": lpv_reports,
+            "plan": [e.to_json() for e in plan],
             "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"} for fmt, summary in summaries.items()},
             "validation": validation,
             "stages": runner.to_json(),

@@ -233,7 +233,7 @@ def clean_scene(scene: Scene) -> CleanScene:
                 warnings.append(f"mesh {mesh.name!r} primitive {pi}: the normal texture uses "
                                 f"TEXCOORD_{normal_texture.tex_coord}, which the primitive lacks; no tangents")
         kept[mi] = len(meshes)
-        meshes.append(Mesh(mesh.name, tuple(prims)))
+        meshes.append(Mesh(mesh.name, tuple(prims), mesh.deforming))
         surfaces.append(surf)
     if not meshes:
         raise AssetError(scene.source, "no triangle with non-zero area")

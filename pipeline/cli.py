@@ -66,6 +66,38 @@ def _bake(args) -> int:
     return 1 if summary["failed"] else 0
 
 
+def _plan(args) -> int:
+    import tempfile
+
+    from .batch import find_assets
+    from .load import AssetError
+    from .materials import MaterialError
+    from .plan import plan_asset
+
+    try:
+        config = load_config(args.config) if args.config else EMPTY_CONFIG
+        # plan writes nothing: the output folder only names where a bake would write
+        jobs = find_assets([Path(p) for p in args.paths], Path(tempfile.gettempdir()) / "sssbake-plan")
+    except (ConfigError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    overrides = {k: v for k, v in (("material", args.material), ("scale_mm", args.scale_mm)) if v is not None}
+    entries, failed = [], 0
+    for job in jobs:
+        try:
+            entries += plan_asset(job.path, config.options_for(job.rel, overrides))
+        except (OSError, ValueError, AssetError, MaterialError) as e:
+            print(f"error: {job.path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+            failed += 1
+    if args.json:
+        print(json.dumps([e.to_json() for e in entries]))
+    else:
+        for e in entries:
+            print(f"{e.asset}  {e.mesh} / {e.material}: {', '.join(e.techniques) or 'no SSS data'}  "
+                  f"({'; '.join(e.reasons)})")
+    return 1 if failed else 0
+
+
 def _vector(text: str, flag: str) -> tuple[float, float, float]:
     try:
         values = tuple(float(v) for v in text.split(","))
@@ -367,6 +399,15 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--out", help="folder for the JSON, CSV and plot (default: next to the input)")
     t.add_argument("--json", action="store_true", help="print one JSON object")
     t.set_defaults(func=_tradeoff)
+
+    pl = sub.add_parser("plan", help="which technique each object and material needs, with reasons (bakes nothing)")
+    pl.add_argument("paths", nargs="+", help="files or folders, as for bake")
+    pl.add_argument("--config", help="TOML batch config (defaults, per-file rules, material rules)")
+    pl.add_argument("--material", help="preset name or 'opaque' for unmatched materials")
+    pl.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
+    pl.add_argument("--json", action="store_true", help="print a JSON list: asset, mesh, material, techniques, "
+                                                        "params, reasons, measures")
+    pl.set_defaults(func=_plan)
 
     p = sub.add_parser("presets", help="list the measured material presets (Jensen et al. 2001)")
     p.set_defaults(func=_presets)

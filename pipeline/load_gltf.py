@@ -72,6 +72,7 @@ def load_gltf(path: str) -> Scene:
     if required:
         raise AssetError(path, f"requires extension {required[0]}, which sssbake cannot decode")
     meshes, skipped = [], []
+    skinned = {node.mesh for node in gltf.nodes if node.mesh is not None and node.skin is not None}
     for i, mesh in enumerate(gltf.meshes):
         prims = []
         for j, prim in enumerate(mesh.primitives):
@@ -80,7 +81,8 @@ def load_gltf(path: str) -> Scene:
                 skipped.append(MODE_NAMES.get(prim.mode, str(prim.mode)))
             else:
                 prims.append(read)
-        meshes.append(Mesh(mesh.name or f"mesh_{i}", tuple(prims)))
+        morphed = any(prim.targets for prim in mesh.primitives)
+        meshes.append(Mesh(mesh.name or f"mesh_{i}", tuple(prims), deforming=i in skinned or morphed))
     if not any(len(p.faces) for m in meshes for p in m.primitives):
         if skipped:
             raise AssetError(path, f"no triangles: only {', '.join(sorted(set(skipped)))} primitives ({len(skipped)} skipped)")

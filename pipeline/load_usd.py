@@ -28,7 +28,7 @@ import os
 import re
 
 import numpy as np
-from pxr import Gf, Tf, Usd, UsdGeom, UsdShade
+from pxr import Gf, Tf, Usd, UsdGeom, UsdShade, UsdSkel
 
 from .load import AssetError
 from .scene import Mesh, Node, Primitive, Scene, SourceMaterial
@@ -203,7 +203,10 @@ class _Reader:
             for material in used:
                 keep, inverse = np.unique(faces[tri_material == material], return_inverse=True)
                 primitives.append(primitive(keep, inverse.reshape(-1, 3), material))
-        self.meshes.append(Mesh(prim.GetName(), tuple(primitives)))
+        # bound to a skeleton (skel:skeleton, inherited from an ancestor) or carrying blend shapes
+        binding = UsdSkel.BindingAPI(prim)
+        deforming = bool(binding.GetInheritedSkeleton()) or bool(binding.GetBlendShapeTargetsRel().GetTargets())
+        self.meshes.append(Mesh(prim.GetName(), tuple(primitives), deforming=deforming))
         return len(self.meshes) - 1
 
     def vertex_data(self, mesh: UsdGeom.Mesh, counts: np.ndarray, n: int, corners: int, where: str) -> dict:

@@ -16,6 +16,9 @@ from .materials import Material
 
 #: Where a grid's coefficients can come from.
 FIELDS = ("homogeneous", "marble")
+#: Above this diffusion decay per cell (σ_tr Δx) the bake warns and the planner refines the grid:
+#: measured on a skin ball, image RMSE 0.05 at 1.8 (32³), 0.13 at 3.6 (16³), 0.35 at 4.8 (12³).
+LPV_COARSE = 2.0
 
 
 @dataclass(frozen=True, eq=False)

@@ -46,7 +46,8 @@ class BakeOptions:
     validate : bool
         Run the Khronos glTF validator and UsdValidation on every export.
     techniques : tuple of str
-        Subsurface techniques to bake besides the standard fallback (see `TECHNIQUES`).
+        Subsurface techniques to bake besides the standard fallback (see `TECHNIQUES`), or
+        ``("auto",)``: the planner (`plan.decide`) chooses per mesh and material.
     prt_directions : int
         prt: light directions K.
     prt_energy_dropped : float
@@ -170,9 +171,11 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"atlas_padding must be in [0, resolution/8], got {o.atlas_padding}")
     if not (1 <= o.thickness_rays <= 64):
         raise ValueError(f"thickness_rays must be in [1, 64], got {o.thickness_rays}")
-    unknown = sorted(set(o.techniques) - set(TECHNIQUES))
+    unknown = sorted(set(o.techniques) - set(TECHNIQUES) - {"auto"})
     if unknown:
-        raise ValueError(f"unknown technique(s) {unknown}; available: {list(TECHNIQUES)}")
+        raise ValueError(f"unknown technique(s) {unknown}; available: {list(TECHNIQUES)} or auto")
+    if "auto" in o.techniques and len(o.techniques) > 1:
+        raise ValueError("techniques: auto plans every technique itself; give it alone")
     if not (4 <= o.prt_directions <= 4096):
         raise ValueError(f"prt_directions must be in [4, 4096], got {o.prt_directions}")
     if not (0.0 < o.prt_energy_dropped < 0.5):

@@ -102,10 +102,18 @@ class Primitive:
 
 @dataclass(frozen=True)
 class Mesh:
-    """A named object made of one or more primitives, sharing one local frame."""
+    """A named object made of one or more primitives, sharing one local frame.
+
+    Attributes
+    ----------
+    deforming : bool
+        The file deforms it at runtime (glTF skin or morph targets, USD skeleton binding or
+        blend shapes): a per-vertex bake of its rest pose would not hold.
+    """
 
     name: str
     primitives: tuple[Primitive, ...]
+    deforming: bool = False
 
 
 @dataclass(frozen=True, eq=False)

@@ -292,3 +292,25 @@ def test_glb_chunk_errors(tmp_path):
     (tmp_path / "v1.glb").write_bytes(data[:4] + (1).to_bytes(4, "little") + data[8:])
     with pytest.raises(AssetError, match="GLB version 1"):
         load_scene(tmp_path / "v1.glb")
+
+
+def test_skinned_and_morphed_meshes_are_marked_deforming(tmp_path):
+    import pygltflib
+    import trimesh
+
+    from sssbake.pipeline.load import load_scene
+
+    path = tmp_path / "two.glb"
+    scene = trimesh.Scene([trimesh.creation.box(), trimesh.creation.icosphere(subdivisions=1)])
+    scene.export(path)
+    gltf = pygltflib.GLTF2.load(str(path))
+    assert len(gltf.meshes) == 2
+    assert [m.deforming for m in load_scene(str(path)).meshes] == [False, False]
+    # the first mesh gets a morph target (its own positions as the displacement), the second's node a skin
+    prim = gltf.meshes[0].primitives[0]
+    prim.targets = [{"POSITION": prim.attributes.POSITION}]
+    node = next(n for n in gltf.nodes if n.mesh == 1)
+    gltf.skins = [pygltflib.Skin(joints=[gltf.nodes.index(node)])]
+    node.skin = 0
+    gltf.save(str(tmp_path / "deforming.glb"))
+    assert [m.deforming for m in load_scene(str(tmp_path / "deforming.glb")).meshes] == [True, True]

@@ -1,0 +1,154 @@
+"""``sssbake plan``: which technique each object and material of an asset needs, from what the scene
+measures, each decision with a one-line reason (models only what a scene requires).
+
+Per translucent (mesh, material), in order, the first rule that applies:
+
+1. **nearly opaque**: half of the widest channel's R_d lies within a radius under the atlas texel
+   footprint (diagonal / atlas resolution): scattering would not show; the standard fallback only
+   (its base colour is R_d);
+2. **heterogeneous** medium (``lpv_field`` other than homogeneous): lpv, the only technique with
+   a per-cell medium; the grid resolution is the smallest whose cells hold σ_tr Δx <= `LPV_COARSE`
+   in every channel (16 .. `LPV_MAX_RESOLUTION`);
+3. **deforming** (glTF skin or morph targets, USD skeleton or blend shapes): no per-vertex bake;
+   screen, which needs nothing per vertex;
+4. **thin or small** relative to the diffusion length 1/σ_tr of the most translucent channel (median
+   thickness under `THIN` diffusion lengths, or a diagonal under `SMALL`): light crosses the
+   object, a global technique: prt;
+5. otherwise thick, local scattering: screen (no per-vertex bytes).
+
+Opaque materials (by assignment) get nothing. Parameters not set by a rule keep the bake's
+defaults.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .assign import assign_materials
+from .bake import _instance_scale, resolve_scale_mm
+from .clean import clean_scene
+from .dipole import DipoleParams
+from .load import load_scene
+from .lpv_stage import LPV_COARSE
+from .options import BakeOptions
+from .spectral_precompute import median_radius
+from .thickness import bake_thickness
+
+#: Below this many diffusion lengths of median thickness, light crosses the object.
+THIN = 4.0
+#: Below this many diffusion lengths of bounding-box diagonal, the object is small.
+SMALL = 20.0
+#: Largest lpv grid the planner chooses (cells along the longest side).
+LPV_MAX_RESOLUTION = 128
+
+
+@dataclass(frozen=True)
+class PlanEntry:
+    """The plan of one translucent (or opaque) material of one mesh.
+
+    Attributes
+    ----------
+    asset : str
+    mesh : str
+    material : str
+        The source material's name.
+    techniques : tuple of str
+        Empty for none (the standard fallback only, or opaque).
+    params : dict
+        Bake options the plan sets (e.g. ``lpv_resolution``).
+    reasons : tuple of str
+        One line per decision.
+    measures : dict
+        What the rules read: ``diagonal_mm``, ``median_thickness_mm``, ``diffusion_mm`` (per
+        channel, 1/σ_tr), ``median_radius_mm`` (the widest channel's), ``texel_mm``.
+    """
+
+    asset: str
+    mesh: str
+    material: str
+    techniques: tuple[str, ...]
+    params: dict = field(default_factory=dict)
+    reasons: tuple[str, ...] = ()
+    measures: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {"asset": self.asset, "mesh": self.mesh, "material": self.material,
+                "techniques": list(self.techniques), "params": self.params, "reasons": list(self.reasons),
+                "measures": self.measures}
+
+
+def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
+    """The plan of every (mesh, material) of the asset at `path` (module docstring).
+
+    Raises
+    ------
+    AssetError, MaterialError, ValueError
+        As the bake would: unreadable files, no scale, bad materials.
+    """
+    path = Path(path)
+    clean = clean_scene(load_scene(str(path)))
+    mm_per_unit, _ = resolve_scale_mm(clean.scene, options)
+    assignment = assign_materials(clean.scene, options, mm_per_unit)
+    entries = []
+    for mi, mesh in enumerate(assignment.scene.meshes):  # primitives without a material got one
+        used = sorted({p.material for p in mesh.primitives if p.material is not None})
+        if not used:
+            continue
+        surface = clean.surfaces[mi]
+        mesh_mm = mm_per_unit * _instance_scale(clean.scene, mi, [])
+        extent = np.ptp(surface.positions, axis=0)
+        diagonal = float(np.linalg.norm(extent))
+        thickness = None
+        for m in used:
+            material = assignment.materials.get(m)
+            name = assignment.scene.materials[m].name
+            if material is None:
+                entries.append(PlanEntry(str(path), mesh.name, name, (), {},
+                                         (f"opaque: {assignment.reasons.get(m, 'no scattering material')}",)))
+                continue
+            if thickness is None:  # one thickness bake per mesh, only for translucent meshes
+                thickness = bake_thickness(surface.positions, surface.faces, surface.normals, cap=diagonal).thickness
+            entries.append(decide(str(path), mesh.name, name, material, mesh.deforming, options,
+                                   diagonal * mesh_mm, float(extent.max()) * mesh_mm,
+                                   float(np.median(thickness)) * mesh_mm))
+    return entries
+
+
+def decide(asset: str, mesh: str, name: str, material, deforming: bool, options: BakeOptions, diagonal_mm: float,
+            longest_mm: float, thickness_mm: float) -> PlanEntry:
+    """The plan of one translucent `material` of a mesh: the first rule of the module docstring that
+    applies, from the mesh's diagonal, longest side and median thickness (mm)."""
+    params = DipoleParams.from_material(material)
+    sigma_tr = np.asarray(params.sigma_tr, dtype=np.float64)
+    diffusion = 1.0 / np.maximum(sigma_tr, 1e-12)
+    radius = float(median_radius(params, 0.5).max())
+    texel = diagonal_mm / options.atlas_resolution
+    measures = {"diagonal_mm": diagonal_mm, "median_thickness_mm": thickness_mm,
+                "diffusion_mm": [float(min(d, 1e12)) for d in diffusion], "median_radius_mm": radius,
+                "texel_mm": texel}
+
+    def entry(techniques, reason, extra=None):
+        return PlanEntry(asset, mesh, name, tuple(techniques), extra or {}, (reason,), measures)
+
+    if radius < texel:
+        return entry((), f"nearly opaque at this scale: half of R_d lies within {radius:.3g} mm, under the "
+                         f"{texel:.3g} mm texel; fallback only (base colour R_d)")
+    if options.lpv_field != "homogeneous":
+        cells = math.ceil(longest_mm * float(sigma_tr.max()) / LPV_COARSE)
+        resolution = int(min(max(cells, 16), LPV_MAX_RESOLUTION))
+        capped = "" if cells <= LPV_MAX_RESOLUTION else f" (capped: {cells} wanted)"
+        return entry(("lpv",), f"heterogeneous medium ({options.lpv_field}): lpv, grid {resolution} so that "
+                               f"sigma_tr * cell <= {LPV_COARSE:g}{capped}",
+                     {"lpv_resolution": resolution, "lpv_field": options.lpv_field})
+    if deforming:
+        return entry(("screen",), "deforming mesh (skin or morph targets): no per-vertex bake; screen")
+    widest = float(diffusion.max())
+    if thickness_mm < THIN * widest or diagonal_mm < SMALL * widest:
+        return entry(("prt",), f"thin or small for its diffusion length {widest:.3g} mm (median thickness "
+                               f"{thickness_mm:.3g} mm, diagonal {diagonal_mm:.3g} mm): light crosses it; prt")
+    return entry(("screen",), f"thick and local: median thickness {thickness_mm / widest:.3g} diffusion lengths "
+                              f"({widest:.3g} mm); screen, nothing per vertex")
