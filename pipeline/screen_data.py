@@ -50,3 +50,15 @@ class ScreenSamples:
         if not (np.isfinite(self.table_reach_mm) and self.table_reach_mm > 0 and self.driver in (0, 1, 2)):
             raise ValueError(f"screen: need a positive table reach and a driver channel 0..2, got "
                              f"{self.table_reach_mm} and {self.driver}")
+
+
+def table_total(samples: ScreenSamples) -> np.ndarray:
+    """(3,) float64 R_d per channel from the Rd table (`table_integral`)."""
+    return table_integral(samples.table, samples.table_reach_mm)
+
+
+def table_integral(table: np.ndarray, reach: float) -> np.ndarray:
+    """(3,) 2π ∫ Rd(r) r dr of a (3, T) Rd table on r = reach t², t in [0, 1] (dr = 2 reach t dt),
+    trapezoidal in t, where the table is linear."""
+    t = np.linspace(0.0, 1.0, table.shape[1])
+    return 2.0 * np.pi * np.trapezoid(table * (reach * t * t) * (2.0 * reach * t), t, axis=1)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gl_passes import SHADOW_OFFSET_TEXELS, OwnedObjects, Pass, gl_matrix, read_texture, shadow_texture
-from .screen_data import ScreenSamples
+from .screen_data import ScreenSamples, table_total
 
 
 #: Vertex and fragment stage of each offscreen pass.
@@ -58,14 +58,6 @@ class ScreenRuntimeOptions:
 
 
 SCREEN_RUNTIME_DEFAULTS = ScreenRuntimeOptions()
-
-
-def table_total(samples: ScreenSamples) -> np.ndarray:
-    """(3,) float64 R_d per channel from the Rd table: 2π ∫ Rd(r) r dr over r = R t², t in [0, 1]
-    (dr = 2 R t dt), trapezoidal in t, where the table is linear."""
-    t = np.linspace(0.0, 1.0, samples.table.shape[1])
-    reach = samples.table_reach_mm
-    return 2.0 * np.pi * np.trapezoid(samples.table * (reach * t * t) * (2.0 * reach * t), t, axis=1)
 
 
 class ScreenPasses(OwnedObjects):

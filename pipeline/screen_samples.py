@@ -29,12 +29,14 @@ import numpy as np
 from .dipole import DipoleParams, diffuse_reflectance_profile, total_diffuse_reflectance
 from .dipole_sampling import radius_cdf, sample_radii
 from .materials import Material
-from .screen_data import ScreenSamples
+from .screen_data import ScreenSamples, table_integral
 
 #: The uniform disc holds this share of the driving channel's R_d.
 UNIFORM_SHARE = 0.5
 #: The table reaches where this share of the furthest channel's R_d is inside.
 TABLE_REACH = 1.0 - 1e-4
+#: A table must hold every channel's R_d to within this share (its integral, `table_integral`).
+TABLE_ENERGY = 0.02
 #: Table sizes tried (powers of two).
 TABLE_SIZES = tuple(2**k for k in range(6, 15))
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
@@ -114,15 +116,22 @@ def _radius_at(params: DipoleParams, share: float) -> np.ndarray:
 
 
 def _table(params: DipoleParams, reach: float, bound: float) -> tuple[np.ndarray, float]:
-    """The smallest table of `TABLE_SIZES` within `bound`, and its measured error."""
+    """The smallest table of `TABLE_SIZES` within `bound` that also holds each channel's R_d
+    within `TABLE_ENERGY`, and its measured error (a channel far narrower than the table's reach
+    can hide inside its first interval, where the pointwise test sees nothing relevant)."""
+    total = total_diffuse_reflectance(params.alpha_prime, params.eta)
     for size in TABLE_SIZES:
         t = np.linspace(0.0, 1.0, size)
         values = diffuse_reflectance_profile(reach * t * t, params).T
         mid = 0.5 * (t[1:] + t[:-1])
         exact = diffuse_reflectance_profile(reach * mid * mid, params).T
         linear = 0.5 * (values[:, 1:] + values[:, :-1])
-        relevant = exact >= 1e-6 * values[:, :1]
-        error = float(np.max(np.where(relevant, np.abs(linear - exact) / exact, 0.0)))
-        if error <= bound:
+        relevant = (exact >= 1e-6 * values[:, :1]) & (exact > 0)
+        error = float(np.max(np.abs(linear - exact)[relevant] / exact[relevant], initial=0.0))
+        held = np.abs(table_integral(values, reach) - total) <= TABLE_ENERGY * total
+        if error <= bound and np.all(held):
             return values, error
-    raise ValueError(f"screen: no Rd table up to {TABLE_SIZES[-1]} entries holds a {bound:g} error")
+    narrowest = float(_radius_at(params, 0.5).min())
+    raise ValueError(f"screen: the channels' profiles span too many scales for one Rd table (it reaches "
+                     f"{reach:.3g} mm, the narrowest channel holds half its R_d within {narrowest:.3g} mm); "
+                     f"no table up to {TABLE_SIZES[-1]} entries is within {bound:g}: raise --screen-table-error")

@@ -12,7 +12,8 @@ from sssbake.pipeline.dipole import DipoleParams, diffuse_reflectance_profile, t
 from sssbake.pipeline.fresnel import fresnel_transmittance
 from sssbake.pipeline.materials import preset
 from sssbake.pipeline.render import Renderer, RenderLight, fit_camera
-from sssbake.pipeline.screen_runtime import ScreenRuntimeOptions, table_total
+from sssbake.pipeline.screen_data import table_total
+from sssbake.pipeline.screen_runtime import ScreenRuntimeOptions
 from sssbake.pipeline.screen_samples import ScreenOptions, screen_samples
 
 DIALECTS = ["glsl330", "essl300"]
