@@ -232,7 +232,8 @@ def _check_closed(faces: np.ndarray) -> None:
     bad = int(np.sum((count != 2) | (ahead != 1)))
     if bad:
         raise ValueError(f"lpv grid: the surface is not closed and consistently wound ({bad} edges are not "
-                         "shared by exactly two triangles in opposite directions)")
+                         "shared by exactly two triangles in opposite directions); lpv needs a closed mesh: "
+                         "bake this one without it")
 
 
 def _inside_share(positions: np.ndarray, faces: np.ndarray, origin: np.ndarray, cell: float,
