@@ -63,6 +63,11 @@ def _bake(args) -> int:
         f"summary in {out / 'batch.json'}",
         file=sys.stderr if args.quiet else sys.stdout,
     )
+    if args.report:
+        from .html_report import write_report
+
+        page = write_report(out, summary)
+        print(f"report in {page}", file=sys.stderr if args.quiet else sys.stdout)
     return 1 if summary["failed"] else 0
 
 
@@ -339,6 +344,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--lpv-field", choices=["homogeneous", "marble"],
                    help=f"lpv: the medium, the material everywhere or marble veins through it "
                         f"(default {BAKE_DEFAULTS.lpv_field})")
+    b.add_argument("--report", action="store_true",
+                   help="also write OUT/report.html: each technique verified against the reference, with pictures")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")
