@@ -455,13 +455,17 @@ def int8_scales(coeffs: np.ndarray, percentile: float | None = None) -> np.ndarr
     """
     magnitude = np.abs(coeffs)
     if percentile is not None:
-        scale = np.percentile(magnitude, percentile, axis=0)
-        return np.where(scale > 0, scale, 1.0).astype(np.float32)
-    peak = magnitude.max(axis=0)
-    peak = np.where(peak > 0, peak, 1.0)
-    candidates = (peak[None] * _SCALE_STEPS[:, None, None]).astype(np.float32)  # (S, 3, C)
+        return _stored_scale(np.percentile(magnitude, percentile, axis=0))
+    candidates = _stored_scale(magnitude.max(axis=0)[None] * _SCALE_STEPS[:, None, None])  # (S, 3, C)
     error = np.stack([((coeffs - decode_int8(encode_int8(coeffs, s), s)) ** 2).sum(axis=0) for s in candidates])
     return np.take_along_axis(candidates, error.argmin(axis=0)[None], axis=0)[0]
+
+
+def _stored_scale(scale: np.ndarray) -> np.ndarray:
+    """`scale` as float32; a range that is 0, or below float32's (coefficients under 1e-38, which
+    decode to 0 either way), is stored as 1 with codes 0."""
+    stored = np.asarray(scale, dtype=np.float64).astype(np.float32)
+    return np.where(stored >= np.finfo(np.float32).tiny, stored, np.float32(1.0))
 
 
 def encode_int8(coeffs: np.ndarray, scale: np.ndarray) -> np.ndarray:
