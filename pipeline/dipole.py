@@ -153,3 +153,21 @@ def radius_for_energy(fraction_dropped: float, p: DipoleParams, r_max: float = 1
         hi = np.where(enough, mid, hi)
         lo = np.where(enough, lo, mid)
     return hi
+
+
+def radius_holding(params: DipoleParams, energy: float) -> np.ndarray:
+    """(3,) radius (mm) within which the disc integral reaches `energy` (in (0, 1)) of R_d, per
+    channel (bisection, doubling from z_v until the disc holds it)."""
+    total = total_diffuse_reflectance(params.alpha_prime, params.eta)
+
+    def reached(r: np.ndarray) -> np.ndarray:  # channel c's disc integral at radius r[c]
+        return np.diagonal(disc_integral(r, params)) >= energy * total
+
+    lo, hi = np.zeros(3), np.maximum(params.z_v, 1e-12)
+    while not np.all(reached(hi)) and hi.max() < 1e15:
+        hi = np.where(reached(hi), hi, 2.0 * hi)
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        short = ~reached(mid)
+        lo, hi = np.where(short, mid, lo), np.where(short, hi, mid)
+    return hi

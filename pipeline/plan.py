@@ -31,11 +31,10 @@ import numpy as np
 from .assign import assign_materials
 from .bake import _instance_scale, resolve_scale_mm
 from .clean import clean_scene
-from .dipole import DipoleParams
+from .dipole import DipoleParams, radius_holding
 from .load import load_scene
 from .lpv_stage import LPV_COARSE
 from .options import BakeOptions
-from .spectral_precompute import median_radius
 from .thickness import bake_thickness
 
 #: Below this many diffusion lengths of median thickness, light crosses the object.
@@ -125,7 +124,7 @@ def decide(asset: str, mesh: str, name: str, material, deforming: bool, options:
     params = DipoleParams.from_material(material)
     sigma_tr = np.asarray(params.sigma_tr, dtype=np.float64)
     diffusion = 1.0 / np.maximum(sigma_tr, 1e-12)
-    radius = float(median_radius(params, 0.5).max())
+    radius = float(radius_holding(params, 0.5).max())
     texel = diagonal_mm / options.atlas_resolution
     measures = {"diagonal_mm": diagonal_mm, "median_thickness_mm": thickness_mm,
                 "diffusion_mm": [float(min(d, 1e12)) for d in diffusion], "median_radius_mm": radius,

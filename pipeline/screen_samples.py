@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .dipole import DipoleParams, diffuse_reflectance_profile, total_diffuse_reflectance
-from .dipole_sampling import radius_cdf, sample_radii
+from .dipole import DipoleParams, diffuse_reflectance_profile, radius_holding, total_diffuse_reflectance
+from .dipole_sampling import sample_radii
 from .materials import Material
 from .screen_data import ScreenSamples, table_integral
 
@@ -77,7 +77,7 @@ def screen_samples(material: Material, options: ScreenOptions = SCREEN_DEFAULTS)
     """The sample tables of one material (module docstring)."""
     options.check()
     params = DipoleParams.from_material(material)
-    spread = _radius_at(params, 0.5)
+    spread = radius_holding(params, 0.5)
     driver = int(np.argmax(spread))
     rng = np.random.default_rng(options.seed)
     n, u = options.samples, options.uniform
@@ -86,7 +86,7 @@ def screen_samples(material: Material, options: ScreenOptions = SCREEN_DEFAULTS)
     counts = np.full(3, n // 3)
     counts[np.argsort(-spread)[: n % 3]] += 1
     radii = [sample_radii((np.arange(k) + rng.random(k)) / max(k, 1), params, c) for c, k in enumerate(counts)]
-    uniform_radius = float(_radius_at(params, UNIFORM_SHARE)[driver])
+    uniform_radius = float(radius_holding(params, UNIFORM_SHARE)[driver])
     uniform_r = uniform_radius * np.sqrt((np.arange(u) + rng.random(u)) / max(u, 1))
     r = np.concatenate(radii + [uniform_r])
     angle = rng.random() * 2.0 * np.pi + GOLDEN_ANGLE * np.arange(len(r))
@@ -96,23 +96,9 @@ def screen_samples(material: Material, options: ScreenOptions = SCREEN_DEFAULTS)
     density = diffuse_reflectance_profile(r, params) / np.maximum(total, 1e-300)  # per unit area, per channel
     p_uni = np.where(r <= uniform_radius, 1.0 / (np.pi * uniform_radius**2), 0.0)
     weights = 1.0 / (density @ counts + u * p_uni)
-    reach = float(_radius_at(params, TABLE_REACH).max())
+    reach = float(radius_holding(params, TABLE_REACH).max())
     table, error = _table(params, reach, options.table_error)
     return ScreenSamples(offsets, weights, driver, uniform_radius, table, reach, error)
-
-
-def _radius_at(params: DipoleParams, share: float) -> np.ndarray:
-    """(3,) radius within which `share` of each channel's R_d lies (bisection on the closed-form CDF)."""
-    out = np.zeros(3)
-    for c in range(3):
-        lo, hi = 0.0, float(params.z_v[c])
-        while radius_cdf(hi, params, c) < share:
-            lo, hi = hi, 2.0 * hi
-        for _ in range(100):
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if radius_cdf(mid, params, c) < share else (lo, mid)
-        out[c] = hi
-    return out
 
 
 def _table(params: DipoleParams, reach: float, bound: float) -> tuple[np.ndarray, float]:
@@ -131,7 +117,7 @@ def _table(params: DipoleParams, reach: float, bound: float) -> tuple[np.ndarray
         held = np.abs(table_integral(values, reach) - total) <= TABLE_ENERGY * total
         if error <= bound and np.all(held):
             return values, error
-    narrowest = float(_radius_at(params, 0.5).min())
+    narrowest = float(radius_holding(params, 0.5).min())
     raise ValueError(f"screen: the channels' profiles span too many scales for one Rd table (it reaches "
                      f"{reach:.3g} mm, the narrowest channel holds half its R_d within {narrowest:.3g} mm); "
                      f"no table up to {TABLE_SIZES[-1]} entries is within {bound:g}: raise --screen-table-error")

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .clean import Surface
-from .dipole import DipoleParams, disc_integral, total_diffuse_reflectance
+from .dipole import DipoleParams, radius_holding, total_diffuse_reflectance
 from .laplacian import cotangent_laplacian
 from .manifold_harmonics import manifold_harmonics
 from .materials import Material
@@ -106,7 +106,7 @@ def precompute_spectral(surface: Surface, mm_per_unit: float, material: Material
     params = DipoleParams.from_material(material)
     # a 2-D Gaussian of standard deviation s holds half its mass within s sqrt(2 ln 2)
     width = float(options.width_mm if options.width_mm is not None
-                  else channel_weights(params) @ median_radius(params, 0.5) / np.sqrt(2.0 * np.log(2.0)))
+                  else channel_weights(params) @ radius_holding(params, 0.5) / np.sqrt(2.0 * np.log(2.0)))
     sigma_tr, radius = naive_parameters(material)
     radius = float(options.radius_mm) if options.radius_mm is not None else radius
     x = surface.positions * mm_per_unit
@@ -138,7 +138,7 @@ def naive_parameters(material: Material) -> tuple[float, float]:
     """The naive normals' σ_tr (1/mm) and neighbourhood radius (mm) from the material (module docstring)."""
     params = DipoleParams.from_material(material)
     share = channel_weights(params)
-    return float(share @ params.sigma_tr), float(share @ median_radius(params, NAIVE_ENERGY))
+    return float(share @ params.sigma_tr), float(share @ radius_holding(params, NAIVE_ENERGY))
 
 
 def nyquist_frequency(positions_mm: np.ndarray, faces: np.ndarray) -> float:
@@ -155,18 +155,3 @@ def channel_weights(params: DipoleParams) -> np.ndarray:
     return total / total.sum() if total.sum() > 0 else np.full(3, 1.0 / 3.0)
 
 
-def median_radius(params: DipoleParams, energy: float) -> np.ndarray:
-    """(3,) radius (mm) within which the disc integral reaches `energy` (in (0, 1)) of R_d, per channel."""
-    total = total_diffuse_reflectance(params.alpha_prime, params.eta)
-
-    def reached(r: np.ndarray) -> np.ndarray:  # channel c's disc integral at radius r[c]
-        return np.diagonal(disc_integral(r, params)) >= energy * total
-
-    lo, hi = np.zeros(3), np.maximum(params.z_v, 1e-12)
-    while not np.all(reached(hi)) and hi.max() < 1e15:
-        hi = np.where(reached(hi), hi, 2.0 * hi)
-    for _ in range(100):
-        mid = 0.5 * (lo + hi)
-        short = ~reached(mid)
-        lo, hi = np.where(short, mid, lo), np.where(short, hi, mid)
-    return hi
