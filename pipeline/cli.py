@@ -40,7 +40,7 @@ def _bake(args) -> int:
                  "kernels_global_vertices", "spectral_eigenpairs", "spectral_width_mm", "spectral_alpha",
                  "spectral_radius_mm", "spectral_variant", "spectral_basis", "screen_samples", "screen_uniform",
                  "screen_table_error", "lpv_resolution", "lpv_padding", "lpv_supersample", "lpv_field",
-                 "lpv_vein_mm", "lpv_max_steps"):
+                 "lpv_vein_mm", "lpv_max_steps", "max_bytes_per_vertex"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -66,7 +66,7 @@ def _bake(args) -> int:
     if args.report:
         from .html_report import write_report
 
-        page = write_report(out, summary)
+        page = write_report(out, summary, budget_rmse=args.budget_rmse)
         print(f"report in {page}", file=sys.stderr if args.quiet else sys.stdout)
     return 1 if summary["failed"] else 0
 
@@ -346,6 +346,10 @@ def build_parser() -> argparse.ArgumentParser:
                         f"(default {BAKE_DEFAULTS.lpv_field})")
     b.add_argument("--report", action="store_true",
                    help="also write OUT/report.html: each technique verified against the reference, with pictures")
+    b.add_argument("--budget-rmse", type=float,
+                   help="with --report: the image RMSE each verified technique should stay under (marked per row)")
+    b.add_argument("--max-bytes-per-vertex", type=float,
+                   help="with --techniques auto: the most bytes per vertex the planner may spend")
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")

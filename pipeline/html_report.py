@@ -26,7 +26,7 @@ td,th{border:1px solid #bbb;padding:.25em .6em;text-align:left}th{background:#ee
 .failed{color:#b00}.asset{margin-bottom:2.5em}"""
 
 
-def write_report(out_dir: Path, summary: dict, verify: bool = True) -> Path:
+def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse: float | None = None) -> Path:
     """Write ``out_dir / report.html`` for the batch `summary` (`batch.run_batch`'s) and return it.
 
     Parameters
@@ -34,6 +34,8 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True) -> Path:
     verify : bool
         Render each baked technique against the offline reference (slow on big meshes); without
         it the page shows what the bake reports alone.
+    budget_rmse : float, optional
+        Each verified row says whether its image RMSE is within it, and the page counts them.
     """
     from .verify import verify_file
 
@@ -56,12 +58,15 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True) -> Path:
                     figures = verify_file(glb, technique, size=VERIFY_SIZE, out_dir=out_dir / ".report", frames=3)
                 except ValueError as error:  # e.g. a technique whose data holds no drawable primitive
                     figures = {"error": str(error).splitlines()[0]}
-            rows.append(_technique_row(technique, report, figures))
+            rows.append(_technique_row(technique, report, figures, budget_rmse))
             if "rmse_image" in figures:
                 points.append((f"{Path(record['asset']).stem} {technique}", figures))
         sections.append(_asset_section(name, record, report, rows))
     body = "".join(sections)
     plot = _pareto(points) if points else ""
+    if budget_rmse is not None:
+        within = sum(f["rmse_image"] <= budget_rmse for _, f in points)
+        plot = f"<p>{within} of {len(points)} verified techniques within the RMSE budget {budget_rmse:g}.</p>" + plot
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>sssbake batch report</title>"
             f"<style>{STYLE}</style></head><body><h1>sssbake batch report</h1>"
             f"<p>{summary['ok']} baked, {summary['failed']} failed in {summary['seconds']:.1f} s.</p>"
@@ -80,26 +85,28 @@ def _asset_section(name: str, record: dict, report: dict, rows: list[str]) -> st
     plan_table = (f"<h3>Plan</h3><table><tr><th>mesh</th><th>material</th><th>techniques</th><th>reason</th></tr>"
                   f"{plan}</table>") if plan else ""
     table = ("<table><tr><th>technique</th><th>bytes / vertex</th><th>RMSE image</th><th>RMSE object</th>"
-             "<th>Lambert RMSE</th><th>frame ms (plain)</th><th>reference | technique | Lambert</th></tr>"
+             "<th>Lambert RMSE</th><th>frame ms (plain)</th><th>budget</th><th>reference | technique | Lambert</th></tr>"
              f"{''.join(rows)}</table>") if rows else "<p>No technique baked: the standard fallback only.</p>"
     return (f'<div class="asset"><h2>{name}</h2><p>{record["status"]}, bake {report.get("seconds", 0):.2f} s, '
             f'{len(report.get("warnings", []))} warnings</p>{"<ul>" + warnings + "</ul>" if warnings else ""}'
             f"{plan_table}{table}</div>")
 
 
-def _technique_row(technique: str, report: dict, figures: dict) -> str:
+def _technique_row(technique: str, report: dict, figures: dict, budget: float | None) -> str:
     from .verify import BYTES_PER_VERTEX
 
     blocks = list(report[technique].values())
     per_vertex = BYTES_PER_VERTEX[technique](blocks[0])
     if "error" in figures:
-        return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='5'>{html.escape(figures['error'])}</td></tr>"
+        return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='6'>{html.escape(figures['error'])}</td></tr>"
     if not figures:
-        return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='5'>not verified</td></tr>"
+        return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='6'>not verified</td></tr>"
     picture = base64.b64encode(Path(figures["pngs"]["comparison"]).read_bytes()).decode()
     return (f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td>{figures['rmse_image']:.4f}</td>"
             f"<td>{figures['rmse_object']:.4f}</td><td>{figures['rmse_object_lambert']:.4f}</td>"
             f"<td>{figures['frame_ms_sss']:.1f} ({figures['frame_ms_plain']:.1f})</td>"
+            + ("<td>—</td>" if budget is None else
+               f"<td>{'within' if figures['rmse_image'] <= budget else 'over'} {budget:g}</td>") +
             f"<td><img alt='{technique}' src='data:image/png;base64,{picture}'></td></tr>")
 
 

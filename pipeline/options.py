@@ -80,6 +80,9 @@ class BakeOptions:
         lpv marble: spacing of the veins, mm.
     lpv_max_steps : int
         lpv: the rendering's scale is tabulated for 1 .. this many propagation steps.
+    max_bytes_per_vertex : float or None
+        ``--techniques auto``: the most bytes per vertex the planner may spend (a prt it chooses
+        gets it as its ``prt_byte_budget``).
     """
 
     material: str | dict = "marble"
@@ -124,6 +127,7 @@ class BakeOptions:
     lpv_field: str = "homogeneous"
     lpv_vein_mm: float = MARBLE_DEFAULTS.vein_mm
     lpv_max_steps: int = LPV_MAX_STEPS
+    max_bytes_per_vertex: float | None = None
 
     def kernels(self) -> KernelsOptions:
         return KernelsOptions(self.kernels_size, self.kernels_threshold, self.kernels_blend, self.kernels_seams,
@@ -206,6 +210,9 @@ def check_options(o: BakeOptions) -> None:
     o.lpv_marble().check()
     if o.lpv_field not in LPV_FIELDS:
         raise ValueError(f"lpv_field must be one of {list(LPV_FIELDS)}, got {o.lpv_field!r}")
+    if o.max_bytes_per_vertex is not None and not (isinstance(o.max_bytes_per_vertex, (int, float))
+                                                   and o.max_bytes_per_vertex > 0):
+        raise ValueError(f"max_bytes_per_vertex must be a positive number, got {o.max_bytes_per_vertex!r}")
     if not (isinstance(o.lpv_max_steps, int) and 1 <= o.lpv_max_steps <= 1024):
         raise ValueError(f"lpv_max_steps must be a whole number in [1, 1024], got {o.lpv_max_steps!r}")
     for name in ("spectral_variant", "spectral_basis"):

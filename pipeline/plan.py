@@ -13,7 +13,8 @@ Per translucent (mesh, material), in order, the first rule that applies:
    screen, which needs nothing per vertex;
 4. **thin or small** relative to the diffusion length 1/σ_tr of the most translucent channel (median
    thickness under `THIN` diffusion lengths, or a diagonal under `SMALL`): light crosses the
-   object, a global technique: prt;
+   object, a global technique: prt (with ``max_bytes_per_vertex`` as its byte budget; screen when
+   prt's tables cannot fit it);
 5. otherwise thick, local scattering: screen (no per-vertex bytes).
 
 Opaque materials (by assignment) get nothing. Parameters not set by a rule keep the bake's
@@ -32,9 +33,11 @@ from .assign import assign_materials
 from .bake import _instance_scale, resolve_scale_mm
 from .clean import clean_scene
 from .dipole import DipoleParams, radius_holding
+from .directions import direction_set
 from .load import load_scene
 from .lpv_stage import LPV_COARSE
 from .options import BakeOptions
+from .prt_compress import budget_reference_count
 from .thickness import bake_thickness
 
 #: Below this many diffusion lengths of median thickness, light crosses the object.
@@ -62,7 +65,7 @@ class PlanEntry:
     reasons : tuple of str
         One line per decision.
     measures : dict
-        What the rules read: ``diagonal_mm``, ``median_thickness_mm``, ``diffusion_mm`` (per
+        What the rules read: ``diagonal_mm``, ``median_thickness_mm`` (area-weighted), ``diffusion_mm`` (per
         channel, 1/σ_tr), ``median_radius_mm`` (the widest channel's), ``texel_mm``.
     """
 
@@ -113,14 +116,25 @@ def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
                 thickness = bake_thickness(surface.positions, surface.faces, surface.normals, cap=diagonal).thickness
             entries.append(decide(str(path), mesh.name, name, material, mesh.deforming, options,
                                    diagonal * mesh_mm, float(extent.max()) * mesh_mm,
-                                   float(np.median(thickness)) * mesh_mm))
+                                   area_median(thickness, surface.vertex_areas) * mesh_mm, len(surface.positions)))
     return entries
 
 
+def area_median(values: np.ndarray, areas: np.ndarray) -> float:
+    """The median of per-vertex `values` (n,) weighted by the vertices' `areas` (n,): the value half
+    the surface is under (a vertex count would let densely meshed thin rims outvote big faces)."""
+    order = np.argsort(values)
+    cumulative = np.cumsum(np.asarray(areas, dtype=np.float64)[order])
+    if not cumulative[-1] > 0:
+        return float(np.median(values))
+    return float(np.asarray(values)[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+
+
 def decide(asset: str, mesh: str, name: str, material, deforming: bool, options: BakeOptions, diagonal_mm: float,
-            longest_mm: float, thickness_mm: float) -> PlanEntry:
+            longest_mm: float, thickness_mm: float, vertices: int) -> PlanEntry:
     """The plan of one translucent `material` of a mesh: the first rule of the module docstring that
-    applies, from the mesh's diagonal, longest side and median thickness (mm)."""
+    applies, from the mesh's diagonal, longest side and median thickness (mm) and its welded
+    vertex count."""
     params = DipoleParams.from_material(material)
     sigma_tr = np.asarray(params.sigma_tr, dtype=np.float64)
     diffusion = 1.0 / np.maximum(sigma_tr, 1e-12)
@@ -147,7 +161,19 @@ def decide(asset: str, mesh: str, name: str, material, deforming: bool, options:
         return entry(("screen",), "deforming mesh (skin or morph targets): no per-vertex bake; screen")
     widest = float(diffusion.max())
     if thickness_mm < THIN * widest or diagonal_mm < SMALL * widest:
-        return entry(("prt",), f"thin or small for its diffusion length {widest:.3g} mm (median thickness "
-                               f"{thickness_mm:.3g} mm, diagonal {diagonal_mm:.3g} mm): light crosses it; prt")
+        why = (f"thin or small for its diffusion length {widest:.3g} mm (median thickness {thickness_mm:.3g} mm, "
+               f"diagonal {diagonal_mm:.3g} mm): light crosses it")
+        budget = options.max_bytes_per_vertex
+        if budget is None:
+            return entry(("prt",), f"{why}; prt")
+        try:  # the budget, not the reference floor, sets the reference points
+            budget_reference_count(budget, vertices, direction_set(options.prt_directions), options.prt_sh_order,
+                                   options.prt_tables, options.prt_weight_bits, options.prt_detail_order)
+        except ValueError as error:
+            least = str(error).rsplit("give at least ", 1)[-1]
+            return entry(("screen",), f"{why}, but prt needs at least {least} bytes per vertex here, over the "
+                                      f"{budget:g} allowed; screen, nothing per vertex")
+        return entry(("prt",), f"{why}; prt within {budget:g} bytes per vertex",
+                     {"prt_byte_budget": float(budget), "prt_reference_floor": 0})
     return entry(("screen",), f"thick and local: median thickness {thickness_mm / widest:.3g} diffusion lengths "
                               f"({widest:.3g} mm); screen, nothing per vertex")

@@ -19,11 +19,15 @@ from sssbake.pipeline.cli import main
 def page(tmp_path_factory):
     src = tmp_path_factory.mktemp("html_in")
     trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(src / "ball.obj")  # 200 mm: screen
-    trimesh.creation.box(extents=(0.6, 0.6, 0.01)).export(src / "leaf.obj")  # 1 mm thin: prt
+    leaf = trimesh.creation.box(extents=(0.6, 0.6, 0.01))
+    for _ in range(4):  # 1538 vertices: enough that prt's tables fit 40 bytes per vertex
+        leaf = leaf.subdivide()
+    leaf.export(src / "leaf.obj")  # 1 mm thin: prt
     (src / "broken.obj").write_text("v 0 0\n")
     out = tmp_path_factory.mktemp("html_out")
     assert main(["bake", str(src), "-o", str(out), "--scale-mm", "100", "--material", "skin1", "--techniques",
-                 "auto", "--prt-directions", "16", "--no-validate", "--report", "-q"]) == 1  # broken.obj fails
+                 "auto", "--prt-directions", "16", "--no-validate", "--report", "--budget-rmse", "0.01",
+                 "--max-bytes-per-vertex", "40", "-q"]) == 1  # broken.obj fails
     return out / "report.html"
 
 
@@ -44,6 +48,12 @@ def test_the_page_holds_every_asset_its_plan_and_pictures(page):
     assert all(0 < float(r[2]) <= float(r[3]) < 1 for r in rows)
     assert float(rows[0][1]) == 0.0 and float(rows[1][1]) > 0  # screen stores nothing per vertex
     assert "src=\"http" not in text and "<link" not in text  # self-contained
+    # the budget: each row says within or over, and the page counts them
+    verdicts = re.findall(r"<td>(within|over) 0.01</td>", text)
+    assert len(verdicts) == 2
+    assert f"{verdicts.count('within')} of 2 verified techniques within the RMSE budget 0.01" in text
+    assert "within 40 bytes per vertex" in text  # the planner gave prt the byte budget, and it held
+    assert float(rows[1][1]) <= 40.0
 
 
 @pytest.mark.skipif(not any(shutil.which(b) for b in ("chromium", "chromium-browser", "google-chrome")),

@@ -106,3 +106,24 @@ def test_bake_auto_runs_what_the_plan_chose_and_reports_it(tmp_path, capsys):
     assert leaf["prt"] and not leaf["screen"] and ball["screen"] and not ball["prt"]
     assert main(["bake", str(src), "-o", str(out), "--scale-mm", "100", "--techniques", "auto,prt", "-q"]) != 0
     assert "auto plans every technique itself" in capsys.readouterr().err
+
+
+def test_a_byte_budget_goes_to_prt_or_turns_it_down(tmp_path):
+    leaf = trimesh.creation.box(extents=(60.0, 60.0, 1.0))
+    for _ in range(4):
+        leaf = leaf.subdivide()
+    path = mesh_file(tmp_path, "leaf.obj", leaf)
+    options = BAKE_DEFAULTS.merged({"material": "skin1", "scale_mm": 1.0, "prt_directions": 16})
+    generous = only(plan_asset(path, options.merged({"max_bytes_per_vertex": 40.0})))
+    assert generous.techniques == ("prt",) and generous.params == {"prt_byte_budget": 40.0, "prt_reference_floor": 0}
+    tight = only(plan_asset(path, options.merged({"max_bytes_per_vertex": 2.0})))
+    assert tight.techniques == ("screen",) and "prt needs at least" in tight.reasons[0]
+
+
+def test_the_median_thickness_is_weighted_by_area():
+    from sssbake.pipeline.plan import area_median
+
+    # many small rim vertices of 60 mm against a few big-face vertices of 1 mm
+    values, areas = np.array([60.0] * 9 + [1.0] * 3), np.array([0.1] * 9 + [10.0] * 3)
+    assert area_median(values, areas) == 1.0 and np.median(values) == 60.0
+    assert area_median(np.array([3.0, 1.0, 2.0]), np.ones(3)) == 2.0
