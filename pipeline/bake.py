@@ -240,12 +240,10 @@ def bake_asset(
             options.thickness_rays, options.atlas_padding,
         )
         if auto:
-            from .plan import area_median, decide  # plan reads the bake's helpers: imported here, not at the top
+            from .plan import decide  # plan reads the bake's helpers: imported here, not at the top
 
             entries = [decide(str(path), mesh.name, scene.materials[m].name, material_of[m], mesh.deforming, options,
-                              diag_mm, float(np.ptp(surface.positions, axis=0).max()) * mesh_mm,
-                              area_median(thick.thickness, surface.vertex_areas) * mesh_mm, len(surface.positions))
-                       for m in mats]
+                              surface, thick.thickness, mesh_mm) for m in mats]
             plan += entries
             techniques = {t for e in entries for t in e.techniques}
             mesh_options = options.merged({k: v for e in entries for k, v in e.params.items()})

@@ -96,9 +96,8 @@ def propagate(grid: LpvGrid, injected: np.ndarray, steps: int,
         Total flux (all cells, channels summed) of the propagation grid before each step and
         after the last; it never grows.
     """
-    current = np.array(injected, dtype=np.float64)
-    accumulated = current.copy()
-    flux = [_flux(current)]
+    accumulated = np.array(injected, dtype=np.float64)
+    flux = [_flux(accumulated)]
     for current in propagation_steps(grid, injected, steps, periodic):
         accumulated += current
         flux.append(_flux(current))

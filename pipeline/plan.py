@@ -31,7 +31,7 @@ import numpy as np
 
 from .assign import assign_materials
 from .bake import _instance_scale, resolve_scale_mm
-from .clean import clean_scene
+from .clean import Surface, clean_scene
 from .dipole import DipoleParams, radius_holding
 from .directions import direction_set
 from .load import load_scene
@@ -102,8 +102,7 @@ def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
             continue
         surface = clean.surfaces[mi]
         mesh_mm = mm_per_unit * _instance_scale(clean.scene, mi, [])
-        extent = np.ptp(surface.positions, axis=0)
-        diagonal = float(np.linalg.norm(extent))
+        diagonal = float(np.linalg.norm(np.ptp(surface.positions, axis=0)))
         thickness = None
         for m in used:
             material = assignment.materials.get(m)
@@ -114,9 +113,8 @@ def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
                 continue
             if thickness is None:  # one thickness bake per mesh, only for translucent meshes
                 thickness = bake_thickness(surface.positions, surface.faces, surface.normals, cap=diagonal).thickness
-            entries.append(decide(str(path), mesh.name, name, material, mesh.deforming, options,
-                                   diagonal * mesh_mm, float(extent.max()) * mesh_mm,
-                                   area_median(thickness, surface.vertex_areas) * mesh_mm, len(surface.positions)))
+            entries.append(decide(str(path), mesh.name, name, material, mesh.deforming, options, surface,
+                                  thickness, mesh_mm))
     return entries
 
 
@@ -130,11 +128,15 @@ def area_median(values: np.ndarray, areas: np.ndarray) -> float:
     return float(np.asarray(values)[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
-def decide(asset: str, mesh: str, name: str, material, deforming: bool, options: BakeOptions, diagonal_mm: float,
-            longest_mm: float, thickness_mm: float, vertices: int) -> PlanEntry:
+def decide(asset: str, mesh: str, name: str, material, deforming: bool, options: BakeOptions, surface: Surface,
+           thickness: np.ndarray, mesh_mm: float) -> PlanEntry:
     """The plan of one translucent `material` of a mesh: the first rule of the module docstring that
-    applies, from the mesh's diagonal, longest side and median thickness (mm) and its welded
-    vertex count."""
+    applies, from the mesh's welded `surface`, its per-vertex `thickness` (n,) in file units and
+    its mm per unit."""
+    extent = np.ptp(surface.positions, axis=0) * mesh_mm
+    diagonal_mm, longest_mm = float(np.linalg.norm(extent)), float(extent.max())
+    thickness_mm = area_median(thickness, surface.vertex_areas) * mesh_mm
+    vertices = len(surface.positions)
     params = DipoleParams.from_material(material)
     sigma_tr = np.asarray(params.sigma_tr, dtype=np.float64)
     diffusion = 1.0 / np.maximum(sigma_tr, 1e-12)

@@ -374,9 +374,7 @@ class Renderer:
         return self._programs[vertex, fragment, prelude]
 
     def _kernels_passes(self, item: dict, light: RenderLight) -> KernelsPasses:
-        model = np.asarray(item["model"], dtype=np.float64)
-        world = np.asarray(item["positions"], dtype=np.float64) @ model[:3, :3].T + model[:3, 3]
-        view_projection, extent, _ = light_camera(world, light)
+        view_projection, extent, _ = _item_light_camera(item, light)
         return KernelsPasses(self.ctx, self._program, item, light, view_projection, extent, self.fbo,
                              self.table_width, self.shadow_size)
 
@@ -406,15 +404,11 @@ class Renderer:
             passes.release()
 
     def _lpv_passes(self, item: dict, light: RenderLight) -> LpvPasses:
-        model = np.asarray(item["model"], dtype=np.float64)
-        world = np.asarray(item["positions"], dtype=np.float64) @ model[:3, :3].T + model[:3, 3]
-        view_projection, extent, tan_half = light_camera(world, light)
+        view_projection, extent, tan_half = _item_light_camera(item, light)
         return LpvPasses(self.ctx, self._program, item, light, view_projection, extent, tan_half, self.fbo)
 
     def _screen_passes(self, item: dict, camera: Camera, light: RenderLight) -> ScreenPasses:
-        model = np.asarray(item["model"], dtype=np.float64)
-        world = np.asarray(item["positions"], dtype=np.float64) @ model[:3, :3].T + model[:3, 3]
-        view_projection, extent, _ = light_camera(world, light)
+        view_projection, extent, _ = _item_light_camera(item, light)
         return ScreenPasses(self.ctx, self._program, item, light, view_projection, extent, camera, self.size,
                             self.fbo, self.shadow_size)
 
@@ -514,6 +508,13 @@ class _Draw:
         owned = self.textures if self.passes is None else [self.passes]  # the passes own their textures
         for o in [self.vao, *owned, *self.buffers]:
             o.release()
+
+
+def _item_light_camera(item: dict, light: RenderLight) -> tuple[np.ndarray, float, float]:
+    """`light_camera` over an item's world-space positions (its shadow map holds the item alone)."""
+    model = np.asarray(item["model"], dtype=np.float64)
+    world = np.asarray(item["positions"], dtype=np.float64) @ model[:3, :3].T + model[:3, 3]
+    return light_camera(world, light)
 
 
 def _check_item(i: int, item: dict) -> str:

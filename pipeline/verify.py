@@ -34,6 +34,7 @@ from .scene import Primitive
 from .materials import Material
 from .naive_normals import naive_normals
 from .reference import Light, reference_scattering
+from .lpv_layout import lpv_bytes, lpv_tables
 from .lpv_propagate import LPV_DEFAULTS
 from .spectral_precompute import SPECTRAL_DEFAULTS, naive_parameters
 from .visibility import direction_visibility, point_visibility
@@ -322,7 +323,8 @@ def lpv_leaks(items: list[dict], image: np.ndarray, reference: np.ndarray, mask:
             "excess_share_unlit": float(excess[mask & ~lit].sum() / total),
             "thin_cells": float(np.mean(grid.occupancy[medium] < 0.5)) if medium.any() else 0.0,
             "lpv_steps": int(items[0]["lpv_steps"]),
-            "bytes_per_mesh": int(4 * (grid.occupancy.size * 10 + 6 * 16 + items[0]["lpv_scales"].size))}
+            "bytes_per_mesh": lpv_bytes(lpv_tables(grid, items[0]["lpv_matrices"], items[0]["lpv_scales"],
+                                                   "homogeneous"))["total"]}
 
 
 def default_naive_normals(surface: Surface, mm_per_unit: float, material: Material) -> np.ndarray:
