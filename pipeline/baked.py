@@ -12,7 +12,7 @@ import numpy as np
 from .materials import Material
 from .scene import Scene, TextureRef
 
-SCHEMA_VERSION = "1.7.0"
+SCHEMA_VERSION = "1.8.0"
 
 
 @dataclass(frozen=True, eq=False)

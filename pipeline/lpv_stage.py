@@ -1,5 +1,6 @@
 """The lpv stage of a bake: one mesh voxelised into its material grid, with the propagation
-matrices and the rendering's scale, laid out, with its report."""
+matrices and the rendering's scale, laid out (with what it was voxelised from, `lpv_layout.lpv_source`),
+with its report."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from dataclasses import dataclass, replace
 from .clean import Surface
 from .lpv_calibrate import render_scales
 from .lpv_grid import LpvGridOptions, homogeneous, voxelise
-from .lpv_layout import lpv_bytes, lpv_tables
+from .lpv_layout import lpv_bytes, lpv_source, lpv_tables
 from .lpv_matrices import propagation_matrices
 from .marble_field import MarbleOptions, marble_field
 from .materials import Material
@@ -53,13 +54,16 @@ def bake_lpv(surface: Surface, mm_per_unit: float, material: Material, grid_opti
         raise ValueError(f"lpv: field must be one of {list(FIELDS)}, got {field!r}")
     seconds = {}
     t = time.perf_counter()
-    source = homogeneous(material) if field == "homogeneous" else marble_field(mm_per_unit, replace(marble, base=material))
+    veins = None if field == "homogeneous" else replace(marble, base=material)
+    source = homogeneous(material) if veins is None else marble_field(mm_per_unit, veins)
     grid = voxelise(surface, mm_per_unit, source, material.eta, grid_options)
     seconds["voxelise"] = time.perf_counter() - t
     t = time.perf_counter()
     scales = render_scales(grid, max_steps)
     seconds["calibrate"] = time.perf_counter() - t
-    tables = lpv_tables(grid, propagation_matrices(), scales, field)
+    # the field's parameters travel with the grid: a reader can rebuild it (verify's reference)
+    tables = lpv_tables(grid, propagation_matrices(), scales, field,
+                        lpv_source(field, mm_per_unit, grid_options, material, veins))
     medium = grid.occupancy > 0
     report = {
         "shape": tables["shape"],

@@ -4,7 +4,11 @@ camera and light, and measure the difference (shared by every technique).
 Per mesh instance the reference is `reference.reference_scattering` over the welded surface of
 what one draw holds (prt: a primitive; kernels and spectral: all primitives of the mesh, which
 share its atlas and throughput matrix, or the surface its normals were filtered on), in the mesh's
-frame with its ``scaleMm``, mapped back to the file's render vertices.
+frame with its ``scaleMm``, mapped back to the file's render vertices. The dipole knows only a
+homogeneous medium: an lpv grid voxelised from a heterogeneous field (``field`` "marble") is
+compared with its own self-convergence reference instead (`lpv_reference`): the same field, as the
+file records it, re-voxelised from the welded surface at twice the resolution, calibrated the same
+way and drawn by the same lpv runtime with proportionally more steps ("lpv 2x").
 
 Lambert images (the baseline, and spectral's subsurface normals, which the runtime shades with the
 plain Lambert shader) are per-vertex clamped cosines times shadow visibility, drawn as q, each
@@ -24,7 +28,7 @@ import numpy as np
 import pygltflib
 
 from ..exporters.read_kernels import read_kernels_glb
-from ..exporters.read_lpv import read_lpv_glb
+from ..exporters.read_lpv import read_lpv_glb, read_lpv_sources_glb
 from ..exporters.read_prt import read_prt_glb
 from ..exporters.read_screen import read_screen_glb
 from ..exporters.read_spectral import read_spectral_glb
@@ -34,7 +38,11 @@ from .scene import Primitive
 from .materials import Material
 from .naive_normals import naive_normals
 from .reference import Light, reference_scattering
-from .lpv_layout import lpv_bytes, lpv_tables
+from .lpv_calibrate import render_scales
+from .lpv_data import LpvGrid
+from .lpv_grid import voxelise
+from .lpv_layout import LpvSource, lpv_bytes, lpv_tables
+from .lpv_matrices import propagation_matrices
 from .lpv_propagate import LPV_DEFAULTS
 from .spectral_precompute import SPECTRAL_DEFAULTS, naive_parameters
 from .visibility import direction_visibility, point_visibility
@@ -55,6 +63,13 @@ REFERENCES = ("exact", "clustered")
 DEFAULT_LIGHT = (0.4, 0.8, 0.45)
 #: Colour of the plain shader that frame times are compared with (its cost does not depend on it).
 PLAIN_ALBEDO = (0.8, 0.8, 0.8)
+#: The ``reference`` of an lpv verify whose grids came from a heterogeneous field (`lpv_reference`).
+LPV_SELF_REFERENCE = "lpv 2x (heterogeneous medium: no closed-form reference)"
+#: Finest grid `lpv_reference` builds, cells along the longest side: 2x a 128³ bake, 16.8 M cells
+#: (8x its cells and 16x its propagation work); finer bakes cannot be checked against 2x.
+LPV_REFERENCE_MAX_RESOLUTION = 256
+#: Propagation steps the runtime's passes accept (`lpv_propagate.LpvOptions`).
+LPV_MAX_STEPS = 1024
 
 
 def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT, size: int = 512,
@@ -84,7 +99,9 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     -------
     dict
         ``technique``, ``light_dir`` (towards the light from the objects' centre), ``light_pos``
-        (None for a directional light), ``reference``, ``rmse_image``, ``rmse_object``, ``rmse_object_lambert``,
+        (None for a directional light), ``reference`` (`reference_sum`, or `LPV_SELF_REFERENCE`
+        where lpv grids of a heterogeneous field were compared with `lpv_reference`; see
+        `reference_label`), ``rmse_image``, ``rmse_object``, ``rmse_object_lambert``,
         ``lambert_scale``, ``bytes_per_vertex``, ``bake_seconds``, ``frame_ms_sss``,
         ``frame_ms_plain``, ``reference_seconds``, ``exposure``, ``image_size``, ``pngs``; spectral
         also ``spectral_scale`` (the fit applied to its image), ``rmse_object_naive`` and
@@ -94,7 +111,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         (`screen_misses`): ``low_share_pixels``, ``missed_share``, ``missed_share_unlit``,
         ``missed_share_low_share``, ``bytes_per_material``; lpv reports where light leaks
         (`lpv_leaks`): ``excess_share``, ``excess_share_unlit``, ``thin_cells``, ``lpv_steps``,
-        ``bytes_per_mesh``.
+        ``bytes_per_mesh``, and with a self-convergence reference ``reference_resolution`` and
+        ``reference_steps`` (its finest grid and its steps).
     """
     from .image_metrics import (best_fit_scale, rmse, shared_exposure, write_comparison_png,
                                 write_difference_png)
@@ -113,6 +131,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     if point is not None and (point.shape != (3,) or not np.all(np.isfinite(point))):
         raise ValueError(f"verify: light position must be three finite numbers, got {light_pos}")
     data = READERS[technique](path)
+    sources = read_lpv_sources_glb(path) if technique == "lpv" else {}
     gltf = pygltflib.GLTF2.load(str(path))
     scene = load_scene(str(path))
     instances = []
@@ -137,6 +156,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         intensity = float(np.linalg.norm(point - centre) * next(iter(mm_world))) ** 2
 
     sss_items, ref_items, lambert_items, naive_items, normal_items = [], [], [], [], []
+    self_references, dipole_references = [], 0  # (resolution, steps) of each lpv 2x reference
+    finer_grids = {}  # mesh index -> `lpv_reference`
     t_ref = time.perf_counter()
     for mi, unit, world in instances:
         prims = [scene.meshes[mi].primitives[pi] for pi in unit]
@@ -169,8 +190,23 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
             """(n, 3) grey q of unit normals `field` (n, 3) at the render vertices."""
             return np.repeat((np.clip(np.sum(field * towards, axis=1), 0.0, None) * weight)[:, None], 3, axis=1)
 
-        ref = reference_scattering(surface, mm, material, light, clustered=reference_sum == "clustered")[:, weld]
         base = dict(positions=prim.positions, normals=normals, faces=prim.faces, model=world, eta=material.eta)
+        source = sources.get((mi, unit[0])) if technique == "lpv" else None
+        lpv_field = str(source.field) if source is not None else None
+        if technique == "lpv" and source is None and _lpv_field(gltf, mi) != "homogeneous":
+            raise ValueError(f"verify: {path}: mesh {mi}'s lpv grid comes from a {_lpv_field(gltf, mi)!r} field but the "
+                             "file does not record its parameters (schema before 1.8.0): bake it again")
+        if lpv_field is not None and lpv_field != "homogeneous":
+            if mi not in finer_grids:  # one per mesh, whatever the instances' transforms
+                finer_grids[mi] = lpv_reference(surface, source, data[(mi, unit[0])][0], lpv_steps)
+            finer, finer_scales, finer_steps, finer_resolution = finer_grids[mi]
+            ref_items.append({**base, "lpv": finer, "lpv_matrices": propagation_matrices(),
+                              "lpv_scales": finer_scales, "lpv_steps": finer_steps})
+            self_references.append((finer_resolution, finer_steps))
+        else:
+            ref = reference_scattering(surface, mm, material, light, clustered=reference_sum == "clustered")[:, weld]
+            ref_items.append({**base, "q": ref.T})
+            dipole_references += 1
         if technique == "prt":
             sss_items.append({**base, "prt": data[(mi, unit[0])]})
         elif technique == "screen":
@@ -189,10 +225,9 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
             sss_items.append({**base, "q": lambert_q(subsurface)})
             naive_items.append({**base, "q": lambert_q(default_naive_normals(surface, mm, material)[weld])})
             normal_items.append({**base, "normals": subsurface, "albedo": PLAIN_ALBEDO})
-        ref_items.append({**base, "q": ref.T})
         lambert_items.append({**base, "q": lambert_q(normals)})
     reference_seconds = time.perf_counter() - t_ref
-    if not any(np.any(it["q"] > 0) for it in ref_items):
+    if not self_references and not any(np.any(it["q"] > 0) for it in ref_items):
         raise ValueError(f"verify: {path}: the light reaches no vertex (inside the object, or behind it)")
 
     renderer = Renderer((size, size))
@@ -204,6 +239,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         light = RenderLight(True, tuple(point), intensity, next(iter(mm_world)))
     image, mask = renderer.render(sss_items, camera, light)
     reference, ref_mask = renderer.render(ref_items, camera, light)
+    if self_references and not np.any(reference[ref_mask] > 0):
+        raise ValueError(f"verify: {path}: the light reaches no cell (inside the object, or behind it)")
     exposure = shared_exposure(reference, ref_mask)
 
     def fitted(drawn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -238,7 +275,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         "technique": technique,
         "light_dir": light_world.tolist(),
         "light_pos": None if point is None else point.tolist(),
-        "reference": reference_sum,
+        "reference": reference_label(reference_sum, dipole_references, len(self_references)),
         "rmse_image": rmse(image, reference, exposure),
         "rmse_object": rmse(image, reference, exposure, ref_mask | mask),
         "rmse_object_lambert": rmse(lambert, reference, exposure, ref_mask),
@@ -255,7 +292,63 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         "image_size": [size, size],
         "pngs": pngs,
         **extra,
+        **({"reference_resolution": max(r for r, _ in self_references),
+            "reference_steps": max(st for _, st in self_references)} if self_references else {}),
     }
+
+
+def reference_label(reference_sum: str, dipoles: int, self_references: int) -> str:
+    """The ``reference`` of `verify_file`: `reference_sum` when every instance is compared with the
+    dipole, `LPV_SELF_REFERENCE` when every one with its lpv 2x, both (``"; "``) when mixed."""
+    if not self_references:
+        return reference_sum
+    return LPV_SELF_REFERENCE if not dipoles else f"{reference_sum} (homogeneous meshes); {LPV_SELF_REFERENCE}"
+
+
+def lpv_reference(surface: Surface, source: LpvSource, grid: LpvGrid, steps: int
+                  ) -> tuple[LpvGrid, np.ndarray, int, int]:
+    """The self-convergence reference of an lpv grid voxelised from a heterogeneous field.
+
+    The dipole has no answer for a veined medium, so the reference is the same technique one
+    refinement further on: the field the file records (`lpv_layout.LpvSource`) re-voxelised from
+    `surface` (the welded surface verify draws, in the mesh's frame) with the same padding and
+    supersampling at twice the file's resolution (at most `LPV_REFERENCE_MAX_RESOLUTION`), its
+    rendering's scale calibrated the same way (`lpv_calibrate.render_scales`), and as many more
+    propagation steps as the cells are smaller (light moves one cell per step, so the reference's
+    light travels as far in mm per frame as the file's). The image difference then measures how far
+    the file's grid and step count are from converged, as `lpv_tradeoff` measures a veined medium
+    against its finest configuration, not the distance to the truth.
+
+    Parameters
+    ----------
+    surface : Surface
+        Closed, file units.
+    source : LpvSource
+        What the file's grid was voxelised from.
+    grid : LpvGrid
+        The file's grid (its cell and index of refraction).
+    steps : int
+        The runtime's propagation steps for the file's grid.
+
+    Returns
+    -------
+    finer : LpvGrid
+    scales : (S, 3) float64
+        The finer grid's rendering scale for 1 .. S steps.
+    finer_steps : int
+        S: the reference's propagation steps.
+    resolution : int
+        The finer grid's cells along the longest side.
+    """
+    resolution = int(source.grid.resolution)
+    finer = min(2 * resolution, LPV_REFERENCE_MAX_RESOLUTION)
+    if finer <= resolution:
+        raise ValueError(f"verify: an lpv grid of {resolution} cells has no finer self-convergence reference within "
+                         f"{LPV_REFERENCE_MAX_RESOLUTION} cells")
+    options = replace(source.grid, resolution=finer)
+    voxels = voxelise(surface, source.mm_per_unit, source.material_field(), grid.eta, options)
+    finer_steps = min(max(1, int(round(steps * grid.cell_mm / voxels.cell_mm))), LPV_MAX_STEPS)
+    return voxels, render_scales(voxels, finer_steps), finer_steps, finer
 
 
 def screen_misses(renderer, items: list[dict], camera, light, image: np.ndarray, reference: np.ndarray,
@@ -344,6 +437,11 @@ def merged_primitive(prims: list) -> Primitive:
                    faces=np.concatenate([p.faces + o for p, o in zip(prims, offsets)]),
                    uvs=tuple(np.concatenate([p.uvs[len(p.uvs) - uv_sets + t] for p in prims]) for t in range(uv_sets)),
                    tangents=None, colors=None)
+
+
+def _lpv_field(gltf: pygltflib.GLTF2, mesh: int) -> str:
+    """The ``field`` a mesh's lpv block names (``"homogeneous"`` when it names none)."""
+    return str((((gltf.meshes[mesh].extras or {}).get("sssbake") or {}).get("lpv") or {}).get("field", "homogeneous"))
 
 
 def _material(gltf: pygltflib.GLTF2, index: int | None, path: Path) -> Material:
