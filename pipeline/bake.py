@@ -30,7 +30,6 @@ from .materials import Material
 from .options import BakeOptions
 from .kernels_layout import kernels_tables, kernels_vertex_attributes
 from .kernels_stage import bake_kernels
-from .prt_compress import PrtCompressOptions
 from .prt_layout import prt_tables, prt_vertex_attributes
 from .prt_stage import bake_prt
 from .screen_stage import bake_screen
@@ -44,7 +43,7 @@ from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
 STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
-                  "spectral": 1, "screen": 1, "lpv": 2}
+                  "spectral": 1, "screen": 1, "lpv": 2, "pilot": 1}
 
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
@@ -147,13 +146,23 @@ def _png_gray(values: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+def job_key(digest: str, options: BakeOptions, picks: dict | None = None) -> str:
+    """What a bake's outputs are up to date with: the file's `digest`, the options, the stage
+    versions, sssbake's version and, from the budget check, its `picks`."""
+    return stage_key(digest, "bake", 1, {"options": options.to_json(), "stages": STAGE_VERSIONS,
+                                         "sssbake": version("sssbake"), **({"picks": picks} if picks is not None else {})})
+
+
 def bake_asset(
-    path: Path, options: BakeOptions, out_base: Path, cache: StageCache, *, trace_memory: bool = False
+    path: Path, options: BakeOptions, out_base: Path, cache: StageCache, *, trace_memory: bool = False,
+    picks: dict[str, int] | None = None,
 ) -> BakeResult:
     """Bake the asset at `path` into ``out_base.glb``, ``.usdc`` and ``.report.json`` (and
     ``.sss_normals.glb`` with `BakeOptions.spectral_variant`).
 
     `trace_memory` records each stage's peak traced allocation (slower; for benchmarks).
+    `picks` (the budget check's, `plan_check`): per plan entry (`plan.PlanEntry.key`), the pilot's
+    candidate to bake instead of the pilot's own choice.
 
     Raises
     ------
@@ -166,13 +175,13 @@ def bake_asset(
     if options.spectral_variant:
         outputs += (out_base.with_suffix(".sss_normals.glb"),)
     digest = file_digest(path)
-    job_key = stage_key(digest, "bake", 1, {"options": options.to_json(), "stages": STAGE_VERSIONS, "sssbake": version("sssbake")})
+    key = job_key(digest, options, picks)
     if all(p.exists() for p in outputs):
         try:
             old = json.loads(outputs[2].read_text())
         except (OSError, ValueError):
             old = {}
-        if old.get("job_key") == job_key:
+        if old.get("job_key") == key:
             return BakeResult(old, outputs, up_to_date=True)
 
     runner = StageRunner(cache, trace_memory)
@@ -188,6 +197,7 @@ def bake_asset(
     material_of = {i: assignment.materials.get(o) for i, o in enumerate(origin)}
     auto = "auto" in options.techniques
     plan: list = []  # the planner's entries (--techniques auto)
+    screen_options: dict[int, BakeOptions] = {}  # per material, the plan's
     used: set[str] = set()  # techniques some mesh or material ran
     mesh_extras: dict[int, dict] = {}
     prt_reports: dict[str, dict] = {}
@@ -240,51 +250,66 @@ def bake_asset(
             options.thickness_rays, options.atlas_padding,
         )
         if auto:
-            from .plan import decide  # plan reads the bake's helpers: imported here, not at the top
+            from .plan import decide, piloted  # plan reads the bake's helpers: imported here, not at the top
+            from .plan_pilot import candidates, run_pilot
 
-            entries = [decide(str(path), mesh.name, scene.materials[m].name, material_of[m], mesh.deforming, options,
-                              surface, thick.thickness, mesh_mm) for m in mats]
+            entries = []
+            for m in mats:
+                e = decide(str(path), mesh.name, scene.materials[m].name, material_of[m], mesh.deforming, options,
+                           surface, thick.thickness, mesh_mm)
+                if options.budget_rmse is not None and e.techniques:
+                    found = candidates(e.techniques[0], e.params, options, len(surface.positions), mesh.deforming)
+                    pilot, _ = runner.run(
+                        "pilot", STAGE_VERSIONS["pilot"], mesh_key,
+                        {"material": material_of[m].to_json(), "mm": mesh_mm, "options": options.to_json(),
+                         "candidates": [c.__dict__ for c in found]},
+                        run_pilot, found, surface, mesh_mm, material_of[m], options, options.budget_rmse,
+                        len(surface.positions))
+                    e = piloted(e, pilot, options.budget_rmse, (picks or {}).get(e.key))
+                entries.append(e)
             plan += entries
             techniques = {t for e in entries for t in e.techniques}
             mesh_options = options.merged({k: v for e in entries for k, v in e.params.items()})
+            # screen is baked per material, after the meshes: each material keeps its entry's options
+            screen_options.update({m: options.merged(e.params) for m, e in zip(mats, entries)})
         else:
             techniques, mesh_options = set(options.techniques), options
         used |= techniques
         prt = None
         if "prt" in techniques:
             _one_material("prt", mesh, mats, scene, warnings)
-            compress = PrtCompressOptions(options.prt_mode, options.prt_reference_fraction, options.prt_sh_order,
-                                          options.prt_weights, tables=options.prt_tables,
-                                          refine=options.prt_refine, weight_bits=options.prt_weight_bits,
-                                          byte_budget=options.prt_byte_budget,
-                                          reference_floor=options.prt_reference_floor,
-                                          detail_order=options.prt_detail_order)
+            compress = mesh_options.prt_compress()
             baked, _ = runner.run(
                 "prt", STAGE_VERSIONS["prt"], mesh_key,
-                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "k": options.prt_directions,
-                 "energy": options.prt_energy_dropped, "compress": compress.__dict__},
-                bake_prt, surface, mesh_mm, material_of[mats[0]], options.prt_directions,
-                options.prt_energy_dropped, compress,
+                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "k": mesh_options.prt_directions,
+                 "energy": mesh_options.prt_energy_dropped, "compress": compress.__dict__},
+                bake_prt, surface, mesh_mm, material_of[mats[0]], mesh_options.prt_directions,
+                mesh_options.prt_energy_dropped, compress,
             )
             prt = baked.prt
+            total = baked.report["bytesPerVertex"]["total"]
+            if compress.byte_budget is not None and total > compress.byte_budget:
+                warnings.append(f"mesh {mesh.name!r}: prt takes {total:.1f} B/vertex, over its {compress.byte_budget:g} "
+                                f"B/vertex budget: simplification stopped at {baked.report['referencePoints']} reference "
+                                "points (edge collapses on thin slabs would flip faces)")
             mesh_extras.setdefault(mi, {})["prt"] = prt_tables(prt)
             prt_reports[mesh.name] = baked.report
         kernels = None
         if "kernels" in techniques:
             _one_material("kernels", mesh, mats, scene, warnings)
-            if options.atlas_padding < (options.kernels_size + 1) // 2:
+            if options.atlas_padding < (mesh_options.kernels_size + 1) // 2:
                 warnings.append(f"mesh {mesh.name!r}: atlas_padding {options.atlas_padding} is below the "
-                                f"{(options.kernels_size + 1) // 2} texels a {options.kernels_size}-texel kernel "
+                                f"{(mesh_options.kernels_size + 1) // 2} texels a {mesh_options.kernels_size}-texel kernel "
                                 "reaches; kernels near chart edges see less of their neighbourhood")
             baked_k, _ = runner.run(
                 "kernels", STAGE_VERSIONS["kernels"], k_atlas,
-                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "options": options.kernels().__dict__,
-                 "bits": options.kernels_bits},
+                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "options": mesh_options.kernels().__dict__,
+                 "bits": mesh_options.kernels_bits},
                 bake_kernels, surface, atlas, [(p.positions, p.normals) for p in mesh.primitives], mesh_mm,
-                material_of[mats[0]], options.kernels(), options.kernels_bits,
+                material_of[mats[0]], mesh_options.kernels(), mesh_options.kernels_bits,
             )
             kernels = baked_k.kernels
-            mesh_extras.setdefault(mi, {})["kernels"] = kernels_tables(kernels, options.kernels_bits)
+            mesh_extras.setdefault(mi, {})["kernels"] = kernels_tables(kernels, mesh_options.kernels_bits)
             kernels_reports[mesh.name] = baked_k.report
         spectral = None
         if "spectral" in techniques:
@@ -292,9 +317,9 @@ def bake_asset(
             # Keyed on the mesh, not the atlas: the normals live on the welded surface's vertices.
             spectral, _ = runner.run(
                 "spectral", STAGE_VERSIONS["spectral"], mesh_key,
-                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "options": options.spectral().__dict__,
-                 "basis": options.spectral_basis},
-                bake_spectral, surface, mesh_mm, material_of[mats[0]], options.spectral(), options.spectral_basis,
+                {"material": material_of[mats[0]].to_json(), "mm": mesh_mm, "options": mesh_options.spectral().__dict__,
+                 "basis": mesh_options.spectral_basis},
+                bake_spectral, surface, mesh_mm, material_of[mats[0]], mesh_options.spectral(), mesh_options.spectral_basis,
             )
             if spectral.tables is not None:
                 mesh_extras.setdefault(mi, {})["spectral"] = spectral.tables
@@ -362,10 +387,11 @@ def bake_asset(
     if screened:
         used.add("screen")
         for m, s in sorted((m, s) for m, s in scattering.items() if m in screened):
+            own = screen_options.get(m, options)
             # Per material, no mesh data: keyed on the material and the options alone.
             baked_s, _ = runner.run("screen", STAGE_VERSIONS["screen"], "material",
-                                    {"material": s.material.to_json(), "options": options.screen().__dict__},
-                                    bake_screen, s.material, options.screen())
+                                    {"material": s.material.to_json(), "options": own.screen().__dict__},
+                                    bake_screen, s.material, own.screen())
             material_extras[m] = {"screen": baked_s.tables}
             name = scene.materials[m].name
             screen_reports[name if name not in screen_reports else f"{name}#{m}"] = baked_s.report
@@ -399,7 +425,7 @@ def bake_asset(
         validation = _validate(runner, outputs, options, warnings)
         report = {
             "asset": str(path),
-            "job_key": job_key,
+            "job_key": key,
             "schema_version": SCHEMA_VERSION,
             "sssbake": version("sssbake"),
             "outputs": [str(p) for p in outputs],

@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from ..exporters.atomic import atomic_path
 from .bake import bake_asset
+from .plan_check import bake_within_budget
 from .cache import StageCache
 from .config import BatchConfig, ConfigError
 from .load import SUPPORTED_EXTENSIONS, AssetError
@@ -80,7 +81,8 @@ def run_job(job: Job, config: BatchConfig, overrides: dict, cache_dir: str | Non
     try:
         options = config.options_for(job.rel, overrides)
         job.out_base.parent.mkdir(parents=True, exist_ok=True)
-        result = bake_asset(job.path, options, job.out_base, StageCache(cache_dir))
+        bake = bake_asset if options.budget_rmse is None else bake_within_budget
+        result = bake(job.path, options, job.out_base, StageCache(cache_dir))
         record["outputs"] = [str(p) for p in result.outputs]
         record["warnings"] = len(result.report.get("warnings", []))
         invalid = [

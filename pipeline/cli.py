@@ -40,7 +40,7 @@ def _bake(args) -> int:
                  "kernels_global_vertices", "spectral_eigenpairs", "spectral_width_mm", "spectral_alpha",
                  "spectral_radius_mm", "spectral_variant", "spectral_basis", "screen_samples", "screen_uniform",
                  "screen_table_error", "lpv_resolution", "lpv_padding", "lpv_supersample", "lpv_field",
-                 "lpv_vein_mm", "lpv_max_steps", "max_bytes_per_vertex"):
+                 "lpv_vein_mm", "lpv_max_steps", "max_bytes_per_vertex", "budget_rmse"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -86,7 +86,9 @@ def _plan(args) -> int:
     except (ConfigError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    overrides = {k: v for k, v in (("material", args.material), ("scale_mm", args.scale_mm)) if v is not None}
+    overrides = {k: v for k, v in (("material", args.material), ("scale_mm", args.scale_mm),
+                                   ("budget_rmse", args.budget_rmse), ("max_bytes_per_vertex", args.max_bytes_per_vertex))
+                 if v is not None}
     entries, failed = [], 0
     for job in jobs:
         try:
@@ -346,10 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
                         f"(default {BAKE_DEFAULTS.lpv_field})")
     b.add_argument("--report", action="store_true",
                    help="also write OUT/report.html: each technique verified against the reference, with pictures")
-    b.add_argument("--budget-rmse", type=float,
-                   help="with --report: the image RMSE each verified technique should stay under (marked per row)")
-    b.add_argument("--max-bytes-per-vertex", type=float,
-                   help="with --techniques auto: the most bytes per vertex the planner may spend")
+    _budget_arguments(b)
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")
@@ -417,12 +416,21 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--material", help="preset name or 'opaque' for unmatched materials")
     pl.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
     pl.add_argument("--json", action="store_true", help="print a JSON list: asset, mesh, material, techniques, "
-                                                        "params, reasons, measures")
+                                                        "params, reasons, measures (and pilot)")
+    _budget_arguments(pl)
     pl.set_defaults(func=_plan)
 
     p = sub.add_parser("presets", help="list the measured material presets (Jensen et al. 2001)")
     p.set_defaults(func=_presets)
     return parser
+
+
+def _budget_arguments(parser) -> None:
+    parser.add_argument("--budget-rmse", type=float,
+                        help="the image RMSE (verify's, on the full asset) each technique should stay under: the bake "
+                             "checks it, and with --techniques auto a pilot on a subsample chooses the parameters")
+    parser.add_argument("--max-bytes-per-vertex", type=float,
+                        help="with --techniques auto: the most bytes per vertex the planner may spend")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -2,8 +2,10 @@
 
 Per asset: its status and warnings, the planner's decisions (``--techniques auto``), and per
 technique it baked the bytes per vertex, the bake's seconds and, verified against the offline
-reference (`verify.verify_file`, small images), the image RMSE, the frame times and the picture
-(reference | technique | Lambert). A Pareto plot (matplotlib) puts every verified technique of the
+reference (`plan_check.check_technique`, small images), the image RMSE, the frame times and the
+picture (reference | technique | Lambert). A bake under a budget (``--budget-rmse``) brings its
+own check's figures, and the page plots what its pilot measured per candidate beside what the full
+asset measured (`plan_check`). A Pareto plot (matplotlib) puts every verified technique of the
 batch at its bytes per vertex and frame-time ratio against its RMSE. Images are inline PNG (base64)
 and the style inline, so the page opens from anywhere, headless browsers included.
 """
@@ -19,8 +21,6 @@ from pathlib import Path
 from ..exporters.atomic import atomic_path
 from .options import TECHNIQUES
 
-#: Image side of the verification renders (pixels).
-VERIFY_SIZE = 160
 STYLE = """body{font-family:sans-serif;margin:2em;color:#222}table{border-collapse:collapse;margin:.5em 0}
 td,th{border:1px solid #bbb;padding:.25em .6em;text-align:left}th{background:#eee}img{max-width:100%}
 .failed{color:#b00}.asset{margin-bottom:2.5em}"""
@@ -35,9 +35,10 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse:
         Render each baked technique against the offline reference (slow on big meshes); without
         it the page shows what the bake reports alone.
     budget_rmse : float, optional
-        Each verified row says whether its image RMSE is within it, and the page counts them.
+        Each verified row says whether its image RMSE is within it, and the page counts them (an
+        asset baked under a budget is judged by its own).
     """
-    from .verify import verify_file
+    from .plan_check import check_technique
 
     out_dir = Path(out_dir)
     sections, points = [], []
@@ -49,24 +50,25 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse:
         glb = next(Path(p) for p in record["outputs"] if p.endswith(".glb"))
         report = json.loads(Path(next(p for p in record["outputs"] if p.endswith(".report.json"))).read_text())
         rows = []
+        check = report.get("check", {})
+        budget = check.get("budget", budget_rmse)
         for technique in TECHNIQUES:
             if not report.get(technique):
                 continue
-            figures = {}
-            if verify:
-                try:
-                    figures = verify_file(glb, technique, size=VERIFY_SIZE, out_dir=out_dir / ".report", frames=3)
-                except ValueError as error:  # e.g. a technique whose data holds no drawable primitive
-                    figures = {"error": str(error).splitlines()[0]}
-            rows.append(_technique_row(technique, report, figures, budget_rmse))
+            figures = check.get("figures", {}).get(technique)
+            if figures is None:
+                figures = check_technique(glb, technique, report["vertices"], out_dir / ".report") if verify else {}
+            rows.append(_technique_row(technique, report, figures, budget))
             if "rmse_image" in figures:
-                points.append((f"{Path(record['asset']).stem} {technique}", figures))
+                points.append((f"{Path(record['asset']).stem} {technique}", figures, budget))
         sections.append(_asset_section(name, record, report, rows))
     body = "".join(sections)
     plot = _pareto(points) if points else ""
-    if budget_rmse is not None:
-        within = sum(f["rmse_image"] <= budget_rmse for _, f in points)
-        plot = f"<p>{within} of {len(points)} verified techniques within the RMSE budget {budget_rmse:g}.</p>" + plot
+    budgets = {b for _, _, b in points if b is not None}
+    if budgets:
+        within = sum(b is not None and f["rmse_image"] <= b for _, f, b in points)
+        plot = (f"<p>{within} of {len(points)} verified techniques within the RMSE budget "
+                f"{', '.join(f'{b:g}' for b in sorted(budgets))}.</p>") + plot
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>sssbake batch report</title>"
             f"<style>{STYLE}</style></head><body><h1>sssbake batch report</h1>"
             f"<p>{summary['ok']} baked, {summary['failed']} failed in {summary['seconds']:.1f} s.</p>"
@@ -84,6 +86,8 @@ def _asset_section(name: str, record: dict, report: dict, rows: list[str]) -> st
                    f"<td>{html.escape('; '.join(e['reasons']))}</td></tr>" for e in report.get("plan", []))
     plan_table = (f"<h3>Plan</h3><table><tr><th>mesh</th><th>material</th><th>techniques</th><th>reason</th></tr>"
                   f"{plan}</table>") if plan else ""
+    if report.get("check"):
+        plan_table += _check_section(report)
     table = ("<table><tr><th>technique</th><th>bytes / vertex</th><th>RMSE image</th><th>RMSE object</th>"
              "<th>Lambert RMSE</th><th>frame ms (plain)</th><th>budget</th><th>reference | technique | Lambert</th></tr>"
              f"{''.join(rows)}</table>") if rows else "<p>No technique baked: the standard fallback only.</p>"
@@ -110,7 +114,50 @@ def _technique_row(technique: str, report: dict, figures: dict, budget: float | 
             f"<td><img alt='{technique}' src='data:image/png;base64,{picture}'></td></tr>")
 
 
-def _pareto(points: list[tuple[str, dict]]) -> str:
+def _check_section(report: dict) -> str:
+    """The budget check's attempts, and per piloted entry its pilot's RMSE per candidate against
+    the full asset's at the candidates baked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    check = report["check"]
+    attempts = ""
+    for i, a in enumerate(check["attempts"]):
+        picks = ", ".join(f"{k}: candidate {v}" for k, v in a["picks"].items()) or "the pilot's choices"
+        errors = ", ".join(f"{t} {r:.4f}" if r is not None else f"{t} —" for t, r in a["rmse_image"].items())
+        attempts += (f"<tr><td>{i}{' (kept)' if i == check['kept'] else ''}</td><td>{html.escape(picks)}</td>"
+                     f"<td>{html.escape(errors)}</td></tr>")
+    text = (f"<h3>Budget check ({'within' if check['within'] else 'over'} {check['budget']:g})</h3>"
+            f"<table><tr><th>bake</th><th>candidate picks</th><th>RMSE on the full asset</th></tr>{attempts}</table>")
+    piloted = [e for e in report.get("plan", []) if e.get("pilot")]
+    if not piloted:
+        return text
+    fig, axes = plt.subplots(1, len(piloted), figsize=(6 * len(piloted), 3.6), squeeze=False)
+    for ax, e in zip(axes[0], piloted):
+        pilot = e["pilot"]
+        labels = [c["label"] for c in pilot["candidates"]]
+        measured = [(i, r["rmse_image"]) for i, r in enumerate(pilot["rows"]) if r["rmse_image"] is not None]
+        ax.plot([i for i, _ in measured], [r for _, r in measured], "o-", label=f"pilot ({pilot['vertices']} vertices)")
+        for a in check["attempts"]:
+            at = a["picks"].get(f"{e['mesh']}/{e['material']}", pilot["chosen"])
+            r = a["rmse_image"].get(pilot["candidates"][at]["technique"])
+            if r is not None:
+                ax.plot([at], [r], "rs")
+        ax.plot([], [], "rs", label="full asset")
+        ax.axhline(pilot["budget"], color="k", lw=1, ls="--", label="budget")
+        ax.set_xticks(range(len(labels)), labels, rotation=60, ha="right", fontsize=6)
+        ax.set(ylabel="image RMSE", title=f"{e['mesh']} / {e['material']}")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=80)
+    plt.close(fig)
+    return text + f"<img alt='pilot' src='data:image/png;base64,{base64.b64encode(buffer.getvalue()).decode()}'>"
+
+
+def _pareto(points: list[tuple[str, dict, float | None]]) -> str:
     """The batch's verified techniques: RMSE against bytes per vertex and against the frame-time ratio."""
     import matplotlib
 
@@ -120,7 +167,7 @@ def _pareto(points: list[tuple[str, dict]]) -> str:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for ax, key, label in ((axes[0], "bytes_per_vertex", "bytes per vertex"),
                            (axes[1], "frame_ratio", "frame time / plain shader")):
-        for name, f in points:
+        for name, f, _ in points:
             x = (f.get(key) or 0.0) if key == "bytes_per_vertex" else f["frame_ms_sss"] / max(f["frame_ms_plain"], 1e-9)
             ax.scatter(x, f["rmse_object"])
             ax.annotate(name, (x, f["rmse_object"]), textcoords="offset points", xytext=(4, 4), fontsize=7)

@@ -9,7 +9,7 @@ from .kernels_precompute import KERNELS_DEFAULTS, KernelsOptions
 from .lpv_grid import LPV_GRID_DEFAULTS, LpvGridOptions
 from .lpv_stage import FIELDS as LPV_FIELDS
 from .marble_field import MARBLE_DEFAULTS, MarbleOptions
-from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, TABLES, WEIGHT_BITS, WEIGHTS
+from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, TABLES, WEIGHT_BITS, WEIGHTS, PrtCompressOptions
 from .scatter_operator import SCATTER_DEFAULTS
 from .screen_samples import SCREEN_DEFAULTS, ScreenOptions
 from .sh import MAX_ORDER
@@ -83,6 +83,10 @@ class BakeOptions:
     max_bytes_per_vertex : float or None
         ``--techniques auto``: the most bytes per vertex the planner may spend (a prt it chooses
         gets it as its ``prt_byte_budget``).
+    budget_rmse : float or None
+        The image RMSE (`verify.verify_file`'s ``rmse_image``) each baked technique should stay
+        under: the bake checks it on the full asset (`plan_check`), and with ``--techniques auto``
+        a pilot chooses the parameters (`plan_pilot`) and the check moves them when it fails.
     """
 
     material: str | dict = "marble"
@@ -128,6 +132,13 @@ class BakeOptions:
     lpv_vein_mm: float = MARBLE_DEFAULTS.vein_mm
     lpv_max_steps: int = LPV_MAX_STEPS
     max_bytes_per_vertex: float | None = None
+    budget_rmse: float | None = None
+
+    def prt_compress(self) -> PrtCompressOptions:
+        return PrtCompressOptions(self.prt_mode, self.prt_reference_fraction, self.prt_sh_order, self.prt_weights,
+                                  tables=self.prt_tables, refine=self.prt_refine, weight_bits=self.prt_weight_bits,
+                                  byte_budget=self.prt_byte_budget, reference_floor=self.prt_reference_floor,
+                                  detail_order=self.prt_detail_order)
 
     def kernels(self) -> KernelsOptions:
         return KernelsOptions(self.kernels_size, self.kernels_threshold, self.kernels_blend, self.kernels_seams,
@@ -213,6 +224,8 @@ def check_options(o: BakeOptions) -> None:
     if o.max_bytes_per_vertex is not None and not (isinstance(o.max_bytes_per_vertex, (int, float))
                                                    and o.max_bytes_per_vertex > 0):
         raise ValueError(f"max_bytes_per_vertex must be a positive number, got {o.max_bytes_per_vertex!r}")
+    if o.budget_rmse is not None and not (isinstance(o.budget_rmse, (int, float)) and 0 < o.budget_rmse < 1):
+        raise ValueError(f"budget_rmse must be an image RMSE in (0, 1), got {o.budget_rmse!r}")
     if not (isinstance(o.lpv_max_steps, int) and 1 <= o.lpv_max_steps <= 1024):
         raise ValueError(f"lpv_max_steps must be a whole number in [1, 1024], got {o.lpv_max_steps!r}")
     for name in ("spectral_variant", "spectral_basis"):

@@ -17,14 +17,15 @@ Per translucent (mesh, material), in order, the first rule that applies:
    prt's tables cannot fit it);
 5. otherwise thick, local scattering: screen (no per-vertex bytes).
 
-Opaque materials (by assignment) get nothing. Parameters not set by a rule keep the bake's
-defaults.
+Opaque materials (by assignment) get nothing. With an error budget (``budget_rmse``) the
+technique's parameters come from a pilot on a subsample (`plan_pilot`, `piloted`), which may also
+turn screen into prt; otherwise parameters not set by a rule keep the bake's defaults.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +68,10 @@ class PlanEntry:
     measures : dict
         What the rules read: ``diagonal_mm``, ``median_thickness_mm`` (area-weighted), ``diffusion_mm`` (per
         channel, 1/σ_tr), ``median_radius_mm`` (the widest channel's), ``texel_mm``.
+    pilot : dict
+        With a budget (`piloted`): ``budget``, ``vertices`` (the subsample's), ``reference``,
+        ``candidates`` (``label``, ``technique``, ``params``), ``rows`` (`plan_pilot.Pilot`),
+        ``chosen`` (the pilot's pick), ``met``, ``pick`` (the candidate baked).
     """
 
     asset: str
@@ -76,11 +81,17 @@ class PlanEntry:
     params: dict = field(default_factory=dict)
     reasons: tuple[str, ...] = ()
     measures: dict = field(default_factory=dict)
+    pilot: dict = field(default_factory=dict)
+
+    @property
+    def key(self) -> str:
+        """``mesh/material``: what the budget check's picks are keyed on."""
+        return f"{self.mesh}/{self.material}"
 
     def to_json(self) -> dict:
         return {"asset": self.asset, "mesh": self.mesh, "material": self.material,
                 "techniques": list(self.techniques), "params": self.params, "reasons": list(self.reasons),
-                "measures": self.measures}
+                "measures": self.measures, **({"pilot": self.pilot} if self.pilot else {})}
 
 
 def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
@@ -113,9 +124,37 @@ def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
                 continue
             if thickness is None:  # one thickness bake per mesh, only for translucent meshes
                 thickness = bake_thickness(surface.positions, surface.faces, surface.normals, cap=diagonal).thickness
-            entries.append(decide(str(path), mesh.name, name, material, mesh.deforming, options, surface,
-                                  thickness, mesh_mm))
+            entry = decide(str(path), mesh.name, name, material, mesh.deforming, options, surface, thickness, mesh_mm)
+            if options.budget_rmse is not None and entry.techniques:
+                from .plan_pilot import candidates, run_pilot
+
+                found = candidates(entry.techniques[0], entry.params, options, len(surface.positions), mesh.deforming)
+                entry = piloted(entry, run_pilot(found, surface, mesh_mm, material, options, options.budget_rmse,
+                                                 len(surface.positions)), options.budget_rmse)
+            entries.append(entry)
     return entries
+
+
+def piloted(entry: PlanEntry, pilot, budget: float, pick: int | None = None) -> PlanEntry:
+    """`entry` with the technique and parameters of the pilot's candidate (`plan_pilot.Pilot`),
+    its own choice or, after the check on the full asset, candidate `pick`; the reason lists what
+    the pilot measured."""
+    i = pilot.chosen if pick is None else pick
+    c = pilot.candidates[i]
+    measured = ", ".join(f"{r['label']} {r['rmse_image']:.4f}" for r in pilot.rows if r["rmse_image"] is not None)
+    if pick is not None and pick != pilot.chosen:
+        verdict = f"{c.label}, moved from the pilot's {pilot.candidates[pilot.chosen].label} by the check on the full asset"
+    elif pilot.met:
+        verdict = f"{c.label}, the cheapest within it"
+    else:
+        verdict = f"none within it; {c.label}, the least RMSE"
+    reason = (f"pilot on {pilot.vertices} vertices, image RMSE against the {pilot.reference} (budget {budget:g}): "
+              f"{measured}; {verdict}")
+    params = {**entry.params, **c.params} if c.technique in entry.techniques else dict(c.params)
+    record = {"budget": budget, "vertices": pilot.vertices, "reference": pilot.reference,
+              "candidates": [{"label": k.label, "technique": k.technique, "params": k.params} for k in pilot.candidates],
+              "rows": [dict(r) for r in pilot.rows], "chosen": pilot.chosen, "met": pilot.met, "pick": i}
+    return replace(entry, techniques=(c.technique,), params=params, reasons=entry.reasons + (reason,), pilot=record)
 
 
 def area_median(values: np.ndarray, areas: np.ndarray) -> float:

@@ -39,7 +39,7 @@ def test_the_page_holds_every_asset_its_plan_and_pictures(page):
     assert re.search(r'class="failed">[^<]*broken\.obj', text)
     assert "thick and local" in text and "light crosses it" in text  # the planner's reasons
     pictures = re.findall(r"alt='([^']+)' src='data:image/png;base64,([^']+)'", text)
-    assert [alt for alt, _ in pictures] == ["Pareto", "screen", "prt"]
+    assert [alt for alt, _ in pictures] == ["Pareto", "pilot", "screen", "pilot", "prt"]
     for _, data in pictures:
         with Image.open(io.BytesIO(base64.b64decode(data))) as png:
             assert png.format == "PNG" and png.size[0] > 100

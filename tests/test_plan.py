@@ -90,6 +90,18 @@ def test_the_command_prints_the_plan_as_json(tmp_path, capsys):
     assert "broken.obj" in err and err.count("\n") == 1
 
 
+def test_the_command_runs_the_pilot_under_a_budget(tmp_path, capsys):
+    mesh_file(tmp_path, "ball.obj", trimesh.creation.icosphere(subdivisions=2, radius=1.0))
+    assert main(["plan", str(tmp_path), "--scale-mm", "100", "--material", "skin1", "--budget-rmse", "0.05",
+                 "--json"]) == 0
+    (entry,) = json.loads(capsys.readouterr().out)
+    pilot = entry["pilot"]
+    chosen = pilot["candidates"][pilot["chosen"]]
+    assert pilot["budget"] == 0.05 and pilot["met"] and pilot["rows"][pilot["chosen"]]["rmse_image"] <= 0.05
+    assert entry["techniques"] == [chosen["technique"]] and entry["params"] == chosen["params"]
+    assert "pilot on 162 vertices" in entry["reasons"][-1] and len(entry["reasons"]) == 2
+
+
 def test_bake_auto_runs_what_the_plan_chose_and_reports_it(tmp_path, capsys):
     src = tmp_path / "in"
     src.mkdir()
@@ -118,6 +130,26 @@ def test_a_byte_budget_goes_to_prt_or_turns_it_down(tmp_path):
     assert generous.techniques == ("prt",) and generous.params == {"prt_byte_budget": 40.0, "prt_reference_floor": 0}
     tight = only(plan_asset(path, options.merged({"max_bytes_per_vertex": 2.0})))
     assert tight.techniques == ("screen",) and "prt needs at least" in tight.reasons[0]
+
+
+def test_the_bake_applies_the_plans_parameters_and_says_when_a_budget_did_not_hold(tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    for name, thickness in (("slab.obj", 8.0), ("leaf.obj", 1.0)):
+        mesh = trimesh.creation.box(extents=(60.0, 60.0, thickness))
+        for _ in range(3):
+            mesh = mesh.subdivide()
+        mesh_file(src, name, mesh)
+    out = tmp_path / "out"
+    assert main(["bake", str(src), "-o", str(out), "--scale-mm", "1", "--material", "skin1", "--techniques", "auto",
+                 "--prt-directions", "16", "--max-bytes-per-vertex", "30", "--no-validate", "-q"]) == 0
+    slab = json.loads((out / "slab.report.json").read_text())
+    assert slab["plan"][0]["params"]["prt_byte_budget"] == 30.0 and slab["prt"]["slab.obj"]["byteBudget"] == 30.0
+    assert slab["prt"]["slab.obj"]["bytesPerVertex"]["total"] <= 30.0 and not slab["warnings"]
+    # 1 mm thin: fast-simplification will not collapse its faces far enough, and the report says so
+    leaf = json.loads((out / "leaf.report.json").read_text())
+    assert leaf["prt"]["leaf.obj"]["bytesPerVertex"]["total"] > 30.0
+    assert any("over its 30 B/vertex budget" in w for w in leaf["warnings"])
 
 
 def test_the_median_thickness_is_weighted_by_area():

@@ -1,0 +1,233 @@
+"""The planner's pilot (``--budget-rmse``): the parameters of a planned technique chosen by measuring
+them on a subsample of the mesh, so the bake spends the fewest bytes and seconds that meet the
+error budget; `plan_check` then checks the choice on the full asset.
+
+The candidates of a technique run from cheap to dear (`candidates`):
+
+* prt: byte budgets per vertex (`PRT_BUDGETS`, capped by ``max_bytes_per_vertex``). Each sets the
+  reference-point count on the full asset (`prt_compress.budget_reference_count`); the pilot uses
+  the same count, since the count over the same area sets the points' spacing, which sets the
+  interpolation error;
+* screen: importance samples N (`SCREEN_SAMPLES`); nothing per vertex, N costs frame time. When
+  no N meets the budget (light crossing a thin part, which screen space misses), prt's
+  candidates follow, unless the mesh deforms;
+* lpv: grid resolutions (`LPV_RESOLUTIONS`) from the planner's on.
+
+The pilot renders each candidate's runtime on the subsample (`PILOT_VERTICES`, `PILOT_SIZE`²,
+verify's light and camera) against the offline reference on the same subsample and takes the
+first whose image RMSE is within `PILOT_MARGIN` of the budget: the full asset has its own mesh
+and framing. A heterogeneous lpv medium has no closed-form reference: each resolution is then
+measured against the next (self-convergence). When none meets it, the candidate with the least
+RMSE is chosen, and the reason says the budget was not met.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .clean import Surface, vertex_areas
+from .directions import direction_set
+from .image_metrics import rmse, shared_exposure
+from .lpv_layout import lpv_grid_from_tables
+from .lpv_propagate import LPV_DEFAULTS
+from .lpv_stage import bake_lpv
+from .materials import Material
+from .options import BakeOptions
+from .prt_compress import budget_reference_count, compress_prt
+from .prt_precompute import PRT_PRECOMPUTE_DEFAULTS, precompute_prt
+from .reference import Light, reference_scattering
+from .screen_samples import screen_samples
+from .simplify import simplify
+
+#: Vertices of the subsample the pilot measures on.
+PILOT_VERTICES = 4000
+#: Side of the pilot's images, pixels; the check on the full asset renders at the same size, so
+#: their figures compare.
+PILOT_SIZE = 160
+PRT_BUDGETS = (6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0)
+SCREEN_SAMPLES = (8, 16, 32, 64)
+LPV_RESOLUTIONS = (16, 24, 32, 48, 64, 96, 128)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One configuration the pilot may choose.
+
+    Attributes
+    ----------
+    technique : str
+    params : dict
+        The bake options it sets on the full asset.
+    label : str
+        What a reader is told it is (e.g. ``"prt <= 12 B/vertex (412 reference points)"``).
+    """
+
+    technique: str
+    params: dict
+    label: str
+
+
+@dataclass(frozen=True)
+class Pilot:
+    """What the pilot measured for one (mesh, material).
+
+    Attributes
+    ----------
+    candidates : tuple of Candidate
+        All of them, cheapest first (the check escalates through the ones after `chosen`).
+    rows : tuple of dict
+        One per measured candidate, in order: ``label``, ``technique``, ``rmse_image``,
+        ``seconds`` (its bake on the subsample).
+    chosen : int
+        Index into `candidates`.
+    met : bool
+        Whether the chosen candidate met the pilot's share of the budget.
+    vertices : int
+        The subsample's vertices.
+    reference : str
+        ``"dipole"`` or ``"next resolution"`` (heterogeneous lpv).
+    """
+
+    candidates: tuple
+    rows: tuple
+    chosen: int
+    met: bool
+    vertices: int
+    reference: str
+
+
+def candidates(technique: str, params: dict, options: BakeOptions, vertices: int, deforming: bool) -> list[Candidate]:
+    """The configurations of `technique` (with the planner's `params`) the pilot tries, cheapest
+    first, for a mesh of `vertices` welded vertices (module docstring)."""
+    if technique == "screen":
+        out = [Candidate("screen", {"screen_samples": n}, f"screen, N = {n}") for n in SCREEN_SAMPLES]
+        return out + ([] if deforming else candidates("prt", {}, options, vertices, deforming))
+    if technique == "prt":
+        ceiling = options.max_bytes_per_vertex
+        budgets = [b for b in PRT_BUDGETS if ceiling is None or b < ceiling] + ([ceiling] if ceiling else [])
+        ds, out, seen = direction_set(options.prt_directions), [], set()
+        for b in budgets:
+            try:
+                count = budget_reference_count(b, vertices, ds, options.prt_sh_order, options.prt_tables,
+                                               options.prt_weight_bits, options.prt_detail_order)
+            except ValueError:  # not even 3 points fit
+                continue
+            count = min(count, vertices)
+            if count not in seen:
+                seen.add(count)
+                out.append(Candidate("prt", {"prt_byte_budget": float(b), "prt_reference_floor": 0},
+                                     f"prt <= {b:g} B/vertex ({count} reference points)"))
+        return out
+    if technique == "lpv":
+        start = params.get("lpv_resolution", options.lpv_resolution)
+        steps = [start] + [r for r in LPV_RESOLUTIONS if r > start]
+        return [Candidate("lpv", {**params, "lpv_resolution": r}, f"lpv, grid {r}") for r in steps]
+    raise ValueError(f"pilot: no candidates for technique {technique!r}")
+
+
+def pilot_surface(surface: Surface, vertices: int = PILOT_VERTICES) -> Surface:
+    """`surface` simplified to about `vertices` vertices (itself when not much larger), each kept
+    vertex with its own normal."""
+    if len(surface.positions) <= 1.5 * vertices:
+        return surface
+    # quadric-optimal positions: the closer surface (screen's error on the bunny's 4k-vertex
+    # subsample: 0.035 against 0.044 with the kept vertices' own positions; 0.023 on all 35k)
+    s = simplify(surface.positions, surface.faces, target_count=2 * vertices, snap=False)
+    return Surface(positions=s.positions, faces=s.faces, normals=surface.normals[s.kept],
+                   vertex_areas=vertex_areas(s.positions, s.faces), weld=(np.arange(len(s.positions)),))
+
+
+def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, material: Material,
+              options: BakeOptions, budget: float, vertices: int, light=None) -> Pilot:
+    """Measure `found` (`candidates`) in order on `surface`'s subsample until one is within
+    `PILOT_MARGIN` · `budget` (module docstring).
+
+    Parameters
+    ----------
+    surface : Surface
+        The mesh's welded surface (file units).
+    vertices : int
+        The full surface's welded vertices (prt's counts are the full asset's).
+    light : (3,) float, optional
+        Towards the light (verify's `DEFAULT_LIGHT` by default).
+    """
+    from .render import Renderer, RenderLight, fit_camera
+    from .verify import DEFAULT_LIGHT
+
+    if not found:
+        raise ValueError("pilot: no candidate to measure")
+    small = pilot_surface(surface, PILOT_VERTICES)
+    direction = np.asarray(DEFAULT_LIGHT if light is None else light, dtype=np.float64)
+    direction /= np.linalg.norm(direction)
+    renderer = Renderer((PILOT_SIZE, PILOT_SIZE))
+    camera = fit_camera(small.positions)
+    lit = RenderLight(False, tuple(direction), 1.0)
+    base = dict(positions=small.positions, normals=small.normals, faces=small.faces, model=np.eye(4), eta=material.eta)
+    converging = found[0].technique == "lpv" and options.lpv_field != "homogeneous"
+    try:
+        if not converging:
+            q = reference_scattering(small, mm_per_unit, material, Light("directional", tuple(direction)))
+            reference, mask = renderer.render([{**base, "q": q.T}], camera, lit)
+            exposure = shared_exposure(reference, mask)
+        maker = _Items(small, mm_per_unit, material, options, vertices)
+        rows, drawn, chosen, met = [], [], None, False
+        for i, c in enumerate(found):
+            t = time.perf_counter()
+            item = maker.item(c)
+            rows.append({"label": c.label, "technique": c.technique, "rmse_image": None,
+                         "seconds": time.perf_counter() - t})
+            drawn.append(renderer.render([{**base, **item}], camera, lit))
+            if converging:  # the previous resolution's error is its distance to this one
+                if i == 0:
+                    continue
+                (previous, _), (image, mask) = drawn[-2:]
+                rows[-2]["rmse_image"] = rmse(previous, image, shared_exposure(image, mask))
+                at = i - 1
+            else:
+                rows[-1]["rmse_image"] = rmse(drawn[-1][0], reference, exposure)
+                at = i
+            if rows[at]["rmse_image"] <= budget and chosen is None:
+                chosen, met = at, True
+            if chosen is not None and c.technique == "lpv":  # lpv grids are dear: stop at the first that meets it
+                break
+    finally:
+        renderer.release()
+    if chosen is None:
+        measured = [(r["rmse_image"], i) for i, r in enumerate(rows) if r["rmse_image"] is not None]
+        chosen = min(measured)[1] if measured else len(found) - 1
+    return Pilot(tuple(found), tuple(rows), chosen, met, len(small.positions),
+                 "next resolution" if converging else "dipole")
+
+
+class _Items:
+    """Render items (`render.Renderer`) of candidates on the pilot's surface, each made by its
+    technique's own stage code; prt's light integrals are computed once for all budgets."""
+
+    def __init__(self, surface: Surface, mm_per_unit: float, material: Material, options: BakeOptions, vertices: int):
+        self.surface, self.mm, self.material, self.options, self.vertices = surface, mm_per_unit, material, options, vertices
+        self._prt = None
+
+    def item(self, c: Candidate) -> dict:
+        o = self.options.merged(c.params)
+        if c.technique == "screen":
+            return {"screen": screen_samples(self.material, o.screen()), "mm_per_unit": self.mm}
+        if c.technique == "lpv":
+            baked = bake_lpv(self.surface, self.mm, self.material, o.lpv_grid(), o.lpv_field, o.lpv_marble(),
+                             o.lpv_max_steps)
+            grid, matrices, scales = lpv_grid_from_tables(baked.tables, self.mm)
+            return {"lpv": grid, "lpv_matrices": matrices, "lpv_scales": scales, "lpv_steps": LPV_DEFAULTS.steps}
+        if self._prt is None:
+            ds = direction_set(o.prt_directions)
+            scatter = replace(PRT_PRECOMPUTE_DEFAULTS.scatter, energy_dropped=o.prt_energy_dropped)
+            self._prt = ds, precompute_prt(self.surface, self.mm, self.material, ds.directions,
+                                           replace(PRT_PRECOMPUTE_DEFAULTS, scatter=scatter)).q
+        ds, q = self._prt
+        n = len(self.surface.positions)
+        # the full asset's count: the same spacing over the same area
+        count = budget_reference_count(o.prt_byte_budget, self.vertices, ds, o.prt_sh_order, o.prt_tables,
+                                       o.prt_weight_bits, o.prt_detail_order)
+        compress = replace(o.prt_compress(), reference_count=min(count, n), byte_budget=None, reference_floor=0)
+        return {"prt": compress_prt(q, ds, self.surface.positions, self.surface.faces, self.material.eta, compress)}

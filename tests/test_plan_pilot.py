@@ -1,0 +1,80 @@
+"""The planner's pilot: candidates cheapest first, a subsample that keeps the shape, and the first
+candidate within the budget chosen from what the pilot measured against the reference."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from sssbake.pipeline.clean import clean_scene
+from sssbake.pipeline.load import load_scene
+from sssbake.pipeline.materials import preset
+from sssbake.pipeline.options import BAKE_DEFAULTS
+from sssbake.pipeline.plan_pilot import PRT_BUDGETS, SCREEN_SAMPLES, candidates, pilot_surface, run_pilot
+from sssbake.pipeline.prt_compress import budget_reference_count
+from sssbake.pipeline.directions import direction_set
+
+
+def surface_of(tmp_path, mesh, name="m.obj"):
+    mesh.export(tmp_path / name)
+    (surface,) = clean_scene(load_scene(str(tmp_path / name))).surfaces
+    return surface
+
+
+def test_candidates_run_from_cheap_to_dear_and_respect_the_byte_ceiling():
+    options = BAKE_DEFAULTS.merged({"prt_directions": 16})
+    screen = candidates("screen", {}, options, 5000, deforming=False)
+    assert [c.params.get("screen_samples") for c in screen[:len(SCREEN_SAMPLES)]] == list(SCREEN_SAMPLES)
+    prt = [c for c in screen if c.technique == "prt"]  # screen falls back to prt on a rigid mesh
+    ds = direction_set(16)
+    counts = [budget_reference_count(c.params["prt_byte_budget"], 5000, ds, 0, "shared", 8) for c in prt]
+    assert counts == sorted(counts) and len(set(counts)) == len(counts)  # each buys more reference points
+    budgets = [c.params["prt_byte_budget"] for c in prt]
+    assert budgets == sorted(budgets) and set(budgets) <= set(PRT_BUDGETS)
+    assert all(c.technique == "screen" for c in candidates("screen", {}, options, 5000, deforming=True))
+    capped = candidates("prt", {}, options.merged({"max_bytes_per_vertex": 10.0}), 5000, False)
+    assert max(c.params["prt_byte_budget"] for c in capped) == 10.0  # the ceiling itself is the last
+    lpv = candidates("lpv", {"lpv_resolution": 38, "lpv_field": "marble"}, options, 5000, False)
+    assert [c.params["lpv_resolution"] for c in lpv] == [38, 48, 64, 96, 128]
+    assert all(c.params["lpv_field"] == "marble" for c in lpv)
+    with pytest.raises(ValueError, match="no candidates"):
+        candidates("kernels", {}, options, 5000, False)
+
+
+def test_the_subsample_keeps_the_shape_with_its_own_normals(tmp_path):
+    ball = surface_of(tmp_path, trimesh.creation.icosphere(subdivisions=5, radius=1.0))  # 10242 vertices
+    small = pilot_surface(ball, 1000)
+    assert 700 < len(small.positions) < 1300
+    np.testing.assert_allclose(np.linalg.norm(small.positions, axis=1), 1.0, atol=0.02)  # still the sphere
+    np.testing.assert_allclose(np.linalg.norm(small.normals, axis=1), 1.0)
+    assert np.all(np.sum(small.normals * small.positions, axis=1) > 0.99)  # outward, as on the sphere
+    np.testing.assert_allclose(small.vertex_areas.sum(), 4 * np.pi, rtol=0.02)
+    assert pilot_surface(ball, 8000) is ball  # not much larger: itself
+
+
+def test_the_pilot_takes_the_first_candidate_within_the_budget(tmp_path):
+    ball = surface_of(tmp_path, trimesh.creation.icosphere(subdivisions=3, radius=1.0))
+    options = BAKE_DEFAULTS.merged({"prt_directions": 16})
+    found = candidates("screen", {}, options, len(ball.positions), False)[:6]  # 4 screen, 2 prt
+    skin = preset("skin1")
+    loose = run_pilot(found, ball, 100.0, skin, options, 0.5, len(ball.positions))
+    errors = [r["rmse_image"] for r in loose.rows]
+    assert len(errors) == len(found) and all(0 < e < 0.5 for e in errors)
+    assert loose.chosen == 0 and loose.met and loose.reference == "dipole"
+    # a budget between the candidates' errors: the first at or under it, whatever comes after
+    budget = sorted(errors)[2]
+    mid = run_pilot(found, ball, 100.0, skin, options, budget, len(ball.positions))
+    np.testing.assert_allclose([r["rmse_image"] for r in mid.rows], errors)  # deterministic
+    assert mid.chosen == next(i for i, e in enumerate(errors) if e <= budget) and mid.met
+    tight = run_pilot(found, ball, 100.0, skin, options, 1e-9, len(ball.positions))
+    assert not tight.met and tight.chosen == int(np.argmin(errors))
+
+
+def test_a_veined_medium_converges_instead(tmp_path):
+    block = surface_of(tmp_path, trimesh.creation.box(extents=(1.0, 0.5, 0.5)))
+    options = BAKE_DEFAULTS.merged({"lpv_field": "marble", "lpv_vein_mm": 20.0})
+    found = candidates("lpv", {"lpv_resolution": 16, "lpv_field": "marble"}, options, len(block.positions), False)[:3]
+    pilot = run_pilot(found, block, 100.0, preset("marble"), options, 0.5, len(block.positions))
+    assert pilot.reference == "next resolution"
+    # the first grid's error is its distance to the next; the pilot stops there when it is within
+    assert pilot.met and pilot.chosen == 0 and len(pilot.rows) == 2
+    assert 0 < pilot.rows[0]["rmse_image"] < 0.5 and pilot.rows[1]["rmse_image"] is None
