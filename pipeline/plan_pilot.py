@@ -15,9 +15,10 @@ The candidates of a technique run from cheap to dear (`candidates`):
 
 The pilot renders each candidate's runtime on the subsample (`PILOT_VERTICES`, `PILOT_SIZE`²,
 verify's light and camera) against the offline reference on the same subsample and takes the
-first whose image RMSE is within `PILOT_MARGIN` of the budget: the full asset has its own mesh
-and framing. A heterogeneous lpv medium has no closed-form reference: each resolution is then
-measured against the next (self-convergence). When none meets it, the candidate with the least
+first whose image RMSE is within the budget (screen and prt measure every candidate, for the
+check's estimates; lpv stops there, its grids being dear). A heterogeneous lpv medium has no
+closed-form reference: each grid is measured against verify's reference for it, the same field at
+twice the resolution (`verify.lpv_reference`). When none meets it, the candidate with the least
 RMSE is chosen, and the reason says the budget was not met.
 """
 
@@ -31,7 +32,7 @@ import numpy as np
 from .clean import Surface, vertex_areas
 from .directions import direction_set
 from .image_metrics import rmse, shared_exposure
-from .lpv_layout import lpv_grid_from_tables
+from .lpv_layout import lpv_grid_from_tables, lpv_source_from_tables
 from .lpv_propagate import LPV_DEFAULTS
 from .lpv_stage import bake_lpv
 from .materials import Material
@@ -41,6 +42,7 @@ from .prt_precompute import PRT_PRECOMPUTE_DEFAULTS, precompute_prt
 from .reference import Light, reference_scattering
 from .screen_samples import screen_samples
 from .simplify import simplify
+from .verify import DEFAULT_LIGHT, LPV_SELF_REFERENCE, lpv_reference
 
 #: Vertices of the subsample the pilot measures on.
 PILOT_VERTICES = 4000
@@ -88,7 +90,7 @@ class Pilot:
     vertices : int
         The subsample's vertices.
     reference : str
-        ``"dipole"`` or ``"next resolution"`` (heterogeneous lpv).
+        ``"dipole"`` or verify's `LPV_SELF_REFERENCE` (heterogeneous lpv).
     """
 
     candidates: tuple
@@ -142,8 +144,8 @@ def pilot_surface(surface: Surface, vertices: int = PILOT_VERTICES) -> Surface:
 
 def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, material: Material,
               options: BakeOptions, budget: float, vertices: int, light=None) -> Pilot:
-    """Measure `found` (`candidates`) in order on `surface`'s subsample until one is within
-    `PILOT_MARGIN` · `budget` (module docstring).
+    """Measure `found` (`candidates`) in order on `surface`'s subsample and choose the first within
+    `budget` (module docstring).
 
     Parameters
     ----------
@@ -155,7 +157,6 @@ def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, mate
         Towards the light (verify's `DEFAULT_LIGHT` by default).
     """
     from .render import Renderer, RenderLight, fit_camera
-    from .verify import DEFAULT_LIGHT
 
     if not found:
         raise ValueError("pilot: no candidate to measure")
@@ -166,40 +167,33 @@ def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, mate
     camera = fit_camera(small.positions)
     lit = RenderLight(False, tuple(direction), 1.0)
     base = dict(positions=small.positions, normals=small.normals, faces=small.faces, model=np.eye(4), eta=material.eta)
-    converging = found[0].technique == "lpv" and options.lpv_field != "homogeneous"
+    # a heterogeneous medium has no closed-form reference: each grid against verify's, the same field at 2x
+    veined = found[0].technique == "lpv" and options.lpv_field != "homogeneous"
     try:
-        if not converging:
+        if not veined:
             q = reference_scattering(small, mm_per_unit, material, Light("directional", tuple(direction)))
             reference, mask = renderer.render([{**base, "q": q.T}], camera, lit)
             exposure = shared_exposure(reference, mask)
         maker = _Items(small, mm_per_unit, material, options, vertices)
-        rows, drawn, chosen, met = [], [], None, False
+        rows, chosen, met = [], None, False
         for i, c in enumerate(found):
             t = time.perf_counter()
             item = maker.item(c)
-            rows.append({"label": c.label, "technique": c.technique, "rmse_image": None,
-                         "seconds": time.perf_counter() - t})
-            drawn.append(renderer.render([{**base, **item}], camera, lit))
-            if converging:  # the previous resolution's error is its distance to this one
-                if i == 0:
-                    continue
-                (previous, _), (image, mask) = drawn[-2:]
-                rows[-2]["rmse_image"] = rmse(previous, image, shared_exposure(image, mask))
-                at = i - 1
-            else:
-                rows[-1]["rmse_image"] = rmse(drawn[-1][0], reference, exposure)
-                at = i
-            if rows[at]["rmse_image"] <= budget and chosen is None:
-                chosen, met = at, True
-            if chosen is not None and c.technique == "lpv":  # lpv grids are dear: stop at the first that meets it
+            seconds = time.perf_counter() - t
+            if veined:
+                reference, mask = renderer.render([{**base, **maker.finer(item)}], camera, lit)
+                exposure = shared_exposure(reference, mask)
+            error = rmse(renderer.render([{**base, **item}], camera, lit)[0], reference, exposure)
+            rows.append({"label": c.label, "technique": c.technique, "rmse_image": error, "seconds": seconds})
+            if error <= budget and chosen is None:
+                chosen, met = i, True
+            if chosen is not None and c.technique == "lpv":  # lpv grids are dear: stop at the first within
                 break
     finally:
         renderer.release()
     if chosen is None:
-        measured = [(r["rmse_image"], i) for i, r in enumerate(rows) if r["rmse_image"] is not None]
-        chosen = min(measured)[1] if measured else len(found) - 1
-    return Pilot(tuple(found), tuple(rows), chosen, met, len(small.positions),
-                 "next resolution" if converging else "dipole")
+        chosen = min(range(len(rows)), key=lambda i: rows[i]["rmse_image"])
+    return Pilot(tuple(found), tuple(rows), chosen, met, len(small.positions), LPV_SELF_REFERENCE if veined else "dipole")
 
 
 class _Items:
@@ -209,6 +203,13 @@ class _Items:
     def __init__(self, surface: Surface, mm_per_unit: float, material: Material, options: BakeOptions, vertices: int):
         self.surface, self.mm, self.material, self.options, self.vertices = surface, mm_per_unit, material, options, vertices
         self._prt = None
+        self.lpv_source = None
+
+    def finer(self, item: dict) -> dict:
+        """The self-convergence reference of the lpv `item` made last, as verify draws it
+        (`verify.lpv_reference`)."""
+        grid, scales, steps, _ = lpv_reference(self.surface, self.lpv_source, item["lpv"], item["lpv_steps"])
+        return {"lpv": grid, "lpv_matrices": item["lpv_matrices"], "lpv_scales": scales, "lpv_steps": steps}
 
     def item(self, c: Candidate) -> dict:
         o = self.options.merged(c.params)
@@ -218,6 +219,7 @@ class _Items:
             baked = bake_lpv(self.surface, self.mm, self.material, o.lpv_grid(), o.lpv_field, o.lpv_marble(),
                              o.lpv_max_steps)
             grid, matrices, scales = lpv_grid_from_tables(baked.tables, self.mm)
+            self.lpv_source = lpv_source_from_tables(baked.tables)
             return {"lpv": grid, "lpv_matrices": matrices, "lpv_scales": scales, "lpv_steps": LPV_DEFAULTS.steps}
         if self._prt is None:
             ds = direction_set(o.prt_directions)

@@ -12,6 +12,7 @@ from sssbake.pipeline.options import BAKE_DEFAULTS
 from sssbake.pipeline.plan_pilot import PRT_BUDGETS, SCREEN_SAMPLES, candidates, pilot_surface, run_pilot
 from sssbake.pipeline.prt_compress import budget_reference_count
 from sssbake.pipeline.directions import direction_set
+from sssbake.pipeline.verify import LPV_SELF_REFERENCE
 
 
 def surface_of(tmp_path, mesh, name="m.obj"):
@@ -69,12 +70,14 @@ def test_the_pilot_takes_the_first_candidate_within_the_budget(tmp_path):
     assert not tight.met and tight.chosen == int(np.argmin(errors))
 
 
-def test_a_veined_medium_converges_instead(tmp_path):
+def test_a_veined_medium_is_measured_against_the_same_field_at_twice_the_resolution(tmp_path):
     block = surface_of(tmp_path, trimesh.creation.box(extents=(1.0, 0.5, 0.5)))
     options = BAKE_DEFAULTS.merged({"lpv_field": "marble", "lpv_vein_mm": 20.0})
     found = candidates("lpv", {"lpv_resolution": 16, "lpv_field": "marble"}, options, len(block.positions), False)[:3]
-    pilot = run_pilot(found, block, 100.0, preset("marble"), options, 0.5, len(block.positions))
-    assert pilot.reference == "next resolution"
-    # the first grid's error is its distance to the next; the pilot stops there when it is within
-    assert pilot.met and pilot.chosen == 0 and len(pilot.rows) == 2
-    assert 0 < pilot.rows[0]["rmse_image"] < 0.5 and pilot.rows[1]["rmse_image"] is None
+    loose = run_pilot(found, block, 100.0, preset("marble"), options, 0.5, len(block.positions))
+    assert loose.reference == LPV_SELF_REFERENCE
+    assert loose.met and loose.chosen == 0 and len(loose.rows) == 1  # lpv stops at the first within
+    tight = run_pilot(found, block, 100.0, preset("marble"), options, 1e-9, len(block.positions))
+    errors = [r["rmse_image"] for r in tight.rows]
+    assert len(errors) == 3 and not tight.met and errors[0] == loose.rows[0]["rmse_image"]
+    assert errors[2] < errors[0]  # finer grids sit nearer their own 2x
