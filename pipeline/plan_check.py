@@ -11,12 +11,14 @@ candidate of another technique (whose scale is not known) is tried once: screen'
 high, and would otherwise hand a thick object to prt for good. At most `MAX_BAKES`
 bakes; the cheapest that met the budget (bytes per vertex, then frame time) is kept, or the one
 with the least RMSE when none did. The report gets ``check``: the budget, each attempt's picks
-and figures, and the kept attempt's verify figures (the HTML report shows them).
+and figures, the kept attempt's verify figures (the HTML report shows them) and the seconds
+the pilot, the bakes and the checks took together.
 """
 
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 from ..exporters.atomic import atomic_path
@@ -66,6 +68,7 @@ def bake_within_budget(path: Path, options: BakeOptions, out_base: Path, cache: 
         if old.get("check", {}).get("key") == final and all(Path(p).exists() for p in old.get("outputs", [])):
             return BakeResult(old, tuple(Path(p) for p in old["outputs"]), up_to_date=True)
 
+    t = time.perf_counter()
     picks: dict[str, int] = {}
     attempts: list[dict] = []
     while True:
@@ -83,7 +86,7 @@ def bake_within_budget(path: Path, options: BakeOptions, out_base: Path, cache: 
         result = bake_asset(path, options, out_base, cache, trace_memory=trace_memory, picks=attempts[kept]["picks"])
     report = dict(result.report)
     report["check"] = {
-        "key": final, "budget": budget, "kept": kept,
+        "key": final, "budget": budget, "kept": kept, "seconds": round(time.perf_counter() - t, 3),
         "within": all(f.get("rmse_image", float("inf")) <= budget for f in attempts[kept]["figures"].values()),
         "attempts": [{"picks": a["picks"],
                       "rmse_image": {t: f.get("rmse_image") for t, f in a["figures"].items()},
@@ -135,7 +138,11 @@ def next_picks(plan: list[dict], figures: dict, budget: float, tried: list[dict]
             to = next((i for i in range(at) if pilot["candidates"][i]["technique"] != technique
                        or (estimate(i) is not None and estimate(i) <= budget)), None)
         if to is not None and to != at:
-            picks[f"{e['mesh']}/{e['material']}"] = to
+            key = f"{e['mesh']}/{e['material']}"
+            if to == pilot["chosen"]:  # the pilot's own choice needs no pick: {} and it are one bake
+                picks.pop(key, None)
+            else:
+                picks[key] = to
             moved = True
     if not moved or picks in tried:
         return None

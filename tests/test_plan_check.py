@@ -51,6 +51,10 @@ def test_within_the_budget_a_cheaper_candidate_is_tried_and_nothing_new_ends_it(
     # the dearest already, over: nowhere to go
     last = [entry([0.05, 0.04], ["prt", "prt"], pick=1)]
     assert next_picks(last, {"prt": {"rmse_image": 0.04}}, 0.02, [{}]) is None
+    # back to the pilot's own choice: no pick, and a bake already made
+    back = [entry([0.05, 0.045, 0.015], ["screen", "screen", "prt"], pick=0, chosen=2)]
+    assert next_picks(back, {"screen": {"rmse_image": 0.04}}, 0.02, [{}, {"m/x": 0}]) is None
+    assert next_picks(back, {"screen": {"rmse_image": 0.04}}, 0.02, [{"m/x": 0}]) == {}
     # a technique the check could not draw is left alone
     assert next_picks(plan, {"prt": {"error": "no drawable primitive"}}, 0.02, [{}]) is None
 
