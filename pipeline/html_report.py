@@ -101,8 +101,9 @@ def _technique_row(technique: str, report: dict, figures: dict, budget: float | 
 
     blocks = list(report[technique].values())
     per_vertex = BYTES_PER_VERTEX[technique](blocks[0])
-    if "error" in figures:
-        return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='6'>{html.escape(figures['error'])}</td></tr>"
+    if "error" in figures or "skipped" in figures:
+        line = figures.get("error", figures.get("skipped"))
+        return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='6'>{html.escape(line)}</td></tr>"
     if not figures:
         return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='6'>not verified</td></tr>"
     picture = base64.b64encode(Path(figures["pngs"]["comparison"]).read_bytes()).decode()
@@ -129,7 +130,8 @@ def _check_section(report: dict) -> str:
         errors = ", ".join(f"{t} {r:.4f}" if r is not None else f"{t} —" for t, r in a["rmse_image"].items())
         attempts += (f"<tr><td>{i}{' (kept)' if i == check['kept'] else ''}</td><td>{html.escape(picks)}</td>"
                      f"<td>{html.escape(errors)}</td></tr>")
-    text = (f"<h3>Budget check ({'within' if check['within'] else 'over'} {check['budget']:g})</h3>"
+    verdict = {True: "within", False: "over", None: "unchecked, against"}[check["within"]]
+    text = (f"<h3>Budget check ({verdict} {check['budget']:g})</h3>"
             f"<table><tr><th>bake</th><th>candidate picks</th><th>RMSE on the full asset</th></tr>{attempts}</table>")
     piloted = [e for e in report.get("plan", []) if e.get("pilot")]
     if not piloted:

@@ -2,6 +2,7 @@
 cheapest attempt within the budget kept, and a bake that applies what the plan chose."""
 
 import json
+import re
 
 import numpy as np
 import trimesh
@@ -110,3 +111,17 @@ def test_the_check_bakes_again_keeps_the_cheapest_within_and_is_then_up_to_date(
     calls = len(seen)
     again = bake_within_budget(src, options, out, StageCache(str(tmp_path / "cache")))
     assert again.up_to_date and len(seen) == calls  # nothing checked twice
+
+
+def test_an_asset_too_large_to_check_keeps_the_pilots_choice_marked_unchecked(tmp_path, monkeypatch):
+    src = tmp_path / "ball.obj"
+    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(src)
+    options = BAKE_DEFAULTS.merged({"material": "skin1", "scale_mm": 100.0, "techniques": ["auto"],
+                                    "validate": False, "budget_rmse": 0.05})
+    monkeypatch.setattr(plan_check, "CHECK_MAX_VERTICES", 100)  # the ball has 162 welded vertices
+    result = bake_within_budget(src, options, tmp_path / "ball", StageCache(str(tmp_path / "cache")))
+    check = result.report["check"]
+    assert check["within"] is None and len(check["attempts"]) == 1
+    assert re.match(r"not checked: \d+ vertices, over the check.s 100 ", check["figures"]["screen"]["skipped"])
+    pilot = result.report["plan"][0]["pilot"]
+    assert pilot["pick"] == pilot["chosen"]
