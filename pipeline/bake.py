@@ -43,7 +43,7 @@ from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
 STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
-                  "spectral": 1, "screen": 1, "lpv": 2, "pilot": 1}
+                  "spectral": 1, "screen": 1, "lpv": 2, "pilot": 2}
 
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 

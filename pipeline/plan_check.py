@@ -6,14 +6,17 @@ asset is baked again, the stage cache keeping what did not change.
 The pilot's RMSE on its subsample is not the full asset's (the subsample is coarser; on the bunny
 screen measured 0.035 there against 0.023 on all 35k vertices), so the check scales the pilot's
 figures of the baked technique by what the full asset measured, and moves to the first candidate
-whose scaled figure meets the budget (one not measured is tried). Within the budget, a cheaper
-candidate of another technique (whose scale is not known) is tried once: screen's pilot errs
-high, and would otherwise hand a thick object to prt for good. At most `MAX_BAKES`
-bakes; the cheapest that met the budget (bytes per vertex, then frame time) is kept, or the one
-with the least RMSE when none did. The report gets ``check``: the budget, each attempt's picks
-and figures, the kept attempt's verify figures (the HTML report shows them) and the seconds
-the pilot, the bakes and the checks took together. Assets above `CHECK_MAX_VERTICES` are not
-checked (the reference would not fit in memory): the pilot's choice stands, marked unchecked.
+whose scaled figure meets the budget (one not measured is tried), passing over those whose bytes
+did not hold in the pilot. Within the budget, a cheaper candidate of another technique (whose
+scale is not known) is tried once: screen's pilot errs high, and would otherwise hand a thick
+object to prt for good. At most `MAX_BAKES` bakes. The cheapest that met the budget (bytes per
+vertex, then frame time) is kept, or the one with the least RMSE when none did; an attempt over
+``max_bytes_per_vertex`` is kept only when all are.
+
+The report gets ``check``: the budget, each attempt's picks and figures, the kept attempt's
+verify figures (the HTML report shows them) and the seconds the pilot, the bakes and the checks
+took together. Assets above `CHECK_MAX_VERTICES` are not checked (the reference would not fit in
+memory): the pilot's choice stands, marked unchecked.
 """
 
 from __future__ import annotations
@@ -89,7 +92,8 @@ def bake_within_budget(path: Path, options: BakeOptions, out_base: Path, cache: 
         if following is None or len(attempts) == MAX_BAKES:
             break
         picks = following
-    kept = min(range(len(attempts)), key=lambda i: _cost(attempts[i]["figures"], budget))
+    kept = min(range(len(attempts)),
+               key=lambda i: _cost(attempts[i]["figures"], budget, options.max_bytes_per_vertex))
     if attempts[kept]["picks"] != picks:  # bake the kept attempt again (its stages come from the cache)
         result = bake_asset(path, options, out_base, cache, trace_memory=trace_memory, picks=attempts[kept]["picks"])
     report = dict(result.report)
@@ -139,14 +143,17 @@ def next_picks(plan: list[dict], figures: dict, budget: float, tried: list[dict]
                 return None
             return row["rmse_image"] * (scale if pilot["candidates"][i]["technique"] == technique else 1.0)
 
+        def holds(i):  # the pilot saw its bytes hold (prt's simplification may stop short)
+            return i >= len(pilot["rows"]) or pilot["rows"][i].get("holds_bytes", True)
+
         if measured > budget:
-            dearer = range(at + 1, len(pilot["candidates"]))
+            dearer = [i for i in range(at + 1, len(pilot["candidates"])) if holds(i)]
             to = next((i for i in dearer if estimate(i) is None or estimate(i) <= budget), None)
-            if to is None and len(dearer):
+            if to is None and dearer:
                 to = min(dearer, key=lambda i: estimate(i))
         else:  # a cheaper candidate the scaled pilot expects within, or one of another technique, unmeasured here
-            to = next((i for i in range(at) if pilot["candidates"][i]["technique"] != technique
-                       or (estimate(i) is not None and estimate(i) <= budget)), None)
+            to = next((i for i in range(at) if holds(i) and (pilot["candidates"][i]["technique"] != technique
+                       or (estimate(i) is not None and estimate(i) <= budget))), None)
         if to is not None and to != at:
             key = f"{e['mesh']}/{e['material']}"
             if to == pilot["chosen"]:  # the pilot's own choice needs no pick: {} and it are one bake
@@ -159,12 +166,14 @@ def next_picks(plan: list[dict], figures: dict, budget: float, tried: list[dict]
     return picks
 
 
-def _cost(figures: dict, budget: float) -> tuple:
+def _cost(figures: dict, budget: float, max_bytes: float | None = None) -> tuple:
     """Order of attempts: within the budget first, then bytes per vertex, then frame time; over it,
-    by the worst RMSE."""
+    by the worst RMSE; last, any over `max_bytes` per vertex."""
     errors = [f.get("rmse_image", float("inf")) for f in figures.values() if "skipped" not in f]
     worst = max(errors, default=0.0)
+    spent = sum(f.get("bytes_per_vertex") or 0.0 for f in figures.values())
+    if max_bytes is not None and spent > max_bytes:
+        return (2, spent, worst)
     if worst <= budget:
-        return (0, sum(f.get("bytes_per_vertex") or 0.0 for f in figures.values()),
-                sum(f.get("frame_ms_sss", 0.0) for f in figures.values()))
+        return (0, spent, sum(f.get("frame_ms_sss", 0.0) for f in figures.values()))
     return (1, worst, 0.0)

@@ -4,10 +4,10 @@ error budget; `plan_check` then checks the choice on the full asset.
 
 The candidates of a technique run from cheap to dear (`candidates`):
 
-* prt: byte budgets per vertex (`PRT_BUDGETS`, capped by ``max_bytes_per_vertex``). Each sets the
-  reference-point count on the full asset (`prt_compress.budget_reference_count`); the pilot uses
-  the same count, since the count over the same area sets the points' spacing, which sets the
-  interpolation error;
+* prt: byte budgets per vertex (`PRT_BUDGETS`, capped by ``max_bytes_per_vertex``), each with
+  K light directions from `PRT_DIRECTIONS`. Each sets the reference-point count on the full asset
+  (`prt_compress.budget_reference_count`); the pilot uses the same count, since the count over the
+  same area sets the points' spacing, which sets the interpolation error;
 * screen: importance samples N (`SCREEN_SAMPLES`); nothing per vertex, N costs frame time. When
   no N meets the budget (light crossing a thin part, which screen space misses), prt's
   candidates follow, unless the mesh deforms;
@@ -50,6 +50,10 @@ PILOT_VERTICES = 4000
 #: their figures compare.
 PILOT_SIZE = 160
 PRT_BUDGETS = (6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0)
+#: Light directions K tried at each budget: fewer leave bytes for more reference points, more
+#: interpolate between directions better. Neither wins everywhere: on the armadillo (potato, verify's
+#: light) 32 B/vertex measured 0.0179 at K = 100, 0.0211 at 200 and 0.0160 at 400.
+PRT_DIRECTIONS = (100, 200, 400)
 SCREEN_SAMPLES = (8, 16, 32, 64)
 LPV_RESOLUTIONS = (16, 24, 32, 48, 64, 96, 128)
 
@@ -82,7 +86,8 @@ class Pilot:
         All of them, cheapest first (the check escalates through the ones after `chosen`).
     rows : tuple of dict
         One per measured candidate, in order: ``label``, ``technique``, ``rmse_image``,
-        ``seconds`` (its bake on the subsample).
+        ``seconds`` (its bake on the subsample), ``holds_bytes`` (False where prt's simplification
+        stopped above the reference points its budget allows: never chosen while another holds).
     chosen : int
         Index into `candidates`.
     met : bool
@@ -110,18 +115,19 @@ def candidates(technique: str, params: dict, options: BakeOptions, vertices: int
     if technique == "prt":
         ceiling = options.max_bytes_per_vertex
         budgets = [b for b in PRT_BUDGETS if ceiling is None or b < ceiling] + ([ceiling] if ceiling else [])
-        ds, out, seen = direction_set(options.prt_directions), [], set()
+        out, seen = [], set()
         for b in budgets:
-            try:
-                count = budget_reference_count(b, vertices, ds, options.prt_sh_order, options.prt_tables,
-                                               options.prt_weight_bits, options.prt_detail_order)
-            except ValueError:  # not even 3 points fit
-                continue
-            count = min(count, vertices)
-            if count not in seen:
-                seen.add(count)
-                out.append(Candidate("prt", {"prt_byte_budget": float(b), "prt_reference_floor": 0},
-                                     f"prt <= {b:g} B/vertex ({count} reference points)"))
+            for k in sorted(set(PRT_DIRECTIONS) | {options.prt_directions}):  # at equal bytes, fewer K bake faster
+                try:
+                    count = budget_reference_count(b, vertices, direction_set(k), options.prt_sh_order,
+                                                   options.prt_tables, options.prt_weight_bits, options.prt_detail_order)
+                except ValueError:  # not even 3 points fit
+                    continue
+                count = min(count, vertices)
+                if (k, count) not in seen:
+                    seen.add((k, count))
+                    out.append(Candidate("prt", {"prt_directions": k, "prt_byte_budget": float(b), "prt_reference_floor": 0},
+                                         f"prt <= {b:g} B/vertex, K = {k} ({count} reference points)"))
         return out
     if technique == "lpv":
         start = params.get("lpv_resolution", options.lpv_resolution)
@@ -184,26 +190,31 @@ def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, mate
                 reference, mask = renderer.render([{**base, **maker.finer(item)}], camera, lit)
                 exposure = shared_exposure(reference, mask)
             error = rmse(renderer.render([{**base, **item}], camera, lit)[0], reference, exposure)
-            rows.append({"label": c.label, "technique": c.technique, "rmse_image": error, "seconds": seconds})
-            if error <= budget and chosen is None:
+            rows.append({"label": c.label, "technique": c.technique, "rmse_image": error, "seconds": seconds,
+                         "holds_bytes": maker.holds_bytes})
+            if error <= budget and maker.holds_bytes and chosen is None:
                 chosen, met = i, True
             if chosen is not None and c.technique == "lpv":  # lpv grids are dear: stop at the first within
                 break
     finally:
         renderer.release()
-    if chosen is None:
-        chosen = min(range(len(rows)), key=lambda i: rows[i]["rmse_image"])
+    if chosen is None:  # the least RMSE, among the candidates that held their bytes if any did
+        held = [i for i, r in enumerate(rows) if r["holds_bytes"]] or range(len(rows))
+        chosen = min(held, key=lambda i: rows[i]["rmse_image"])
     return Pilot(tuple(found), tuple(rows), chosen, met, len(small.positions), LPV_SELF_REFERENCE if veined else "dipole")
 
 
 class _Items:
     """Render items (`render.Renderer`) of candidates on the pilot's surface, each made by its
-    technique's own stage code; prt's light integrals are computed once for all budgets."""
+    technique's own stage code; prt's light integrals are computed once per K for all budgets."""
 
     def __init__(self, surface: Surface, mm_per_unit: float, material: Material, options: BakeOptions, vertices: int):
         self.surface, self.mm, self.material, self.options, self.vertices = surface, mm_per_unit, material, options, vertices
-        self._prt = None
+        self._q = {}  # prt's light integrals per K
         self.lpv_source = None
+        # whether the last item kept to its bytes: prt's simplification can stop short of the count
+        # a byte budget allows (thin slabs), and then it takes more
+        self.holds_bytes = True
 
     def finer(self, item: dict) -> dict:
         """The self-convergence reference of the lpv `item` made last, as verify draws it
@@ -214,22 +225,25 @@ class _Items:
     def item(self, c: Candidate) -> dict:
         o = self.options.merged(c.params)
         if c.technique == "screen":
+            self.holds_bytes = True
             return {"screen": screen_samples(self.material, o.screen()), "mm_per_unit": self.mm}
         if c.technique == "lpv":
             baked = bake_lpv(self.surface, self.mm, self.material, o.lpv_grid(), o.lpv_field, o.lpv_marble(),
                              o.lpv_max_steps)
             grid, matrices, scales = lpv_grid_from_tables(baked.tables, self.mm)
-            self.lpv_source = lpv_source_from_tables(baked.tables)
+            self.lpv_source, self.holds_bytes = lpv_source_from_tables(baked.tables), True
             return {"lpv": grid, "lpv_matrices": matrices, "lpv_scales": scales, "lpv_steps": LPV_DEFAULTS.steps}
-        if self._prt is None:
+        if o.prt_directions not in self._q:
             ds = direction_set(o.prt_directions)
             scatter = replace(PRT_PRECOMPUTE_DEFAULTS.scatter, energy_dropped=o.prt_energy_dropped)
-            self._prt = ds, precompute_prt(self.surface, self.mm, self.material, ds.directions,
-                                           replace(PRT_PRECOMPUTE_DEFAULTS, scatter=scatter)).q
-        ds, q = self._prt
+            self._q[o.prt_directions] = ds, precompute_prt(self.surface, self.mm, self.material, ds.directions,
+                                                           replace(PRT_PRECOMPUTE_DEFAULTS, scatter=scatter)).q
+        ds, q = self._q[o.prt_directions]
         n = len(self.surface.positions)
         # the full asset's count: the same spacing over the same area
         count = budget_reference_count(o.prt_byte_budget, self.vertices, ds, o.prt_sh_order, o.prt_tables,
                                        o.prt_weight_bits, o.prt_detail_order)
         compress = replace(o.prt_compress(), reference_count=min(count, n), byte_budget=None, reference_floor=0)
-        return {"prt": compress_prt(q, ds, self.surface.positions, self.surface.faces, self.material.eta, compress)}
+        prt = compress_prt(q, ds, self.surface.positions, self.surface.faces, self.material.eta, compress)
+        self.holds_bytes = len(prt.ref_vertices) <= compress.reference_count
+        return {"prt": prt}

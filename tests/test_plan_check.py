@@ -125,3 +125,14 @@ def test_an_asset_too_large_to_check_keeps_the_pilots_choice_marked_unchecked(tm
     assert re.match(r"not checked: \d+ vertices, over the check.s 100 ", check["figures"]["screen"]["skipped"])
     pilot = result.report["plan"][0]["pilot"]
     assert pilot["pick"] == pilot["chosen"]
+
+
+def test_candidates_whose_bytes_did_not_hold_are_passed_over():
+    plan = [entry([0.04, 0.03, 0.02, 0.01], ["prt"] * 4, pick=0)]
+    plan[0]["pilot"]["rows"][3]["holds_bytes"] = False  # simplification stopped short: more bytes than allowed
+    plan[0]["pilot"]["rows"][1]["holds_bytes"] = False
+    assert next_picks(plan, {"prt": {"rmse_image": 0.04}}, 0.02, [{}]) == {"m/x": 2}
+    over = {"prt": {"rmse_image": 0.01, "bytes_per_vertex": 50.0}}
+    within = {"prt": {"rmse_image": 0.019, "bytes_per_vertex": 30.0}}
+    worse = {"prt": {"rmse_image": 0.03, "bytes_per_vertex": 20.0}}
+    assert sorted([over, worse, within], key=lambda f: _cost(f, 0.02, 32.0)) == [within, worse, over]

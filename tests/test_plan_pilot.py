@@ -9,7 +9,7 @@ from sssbake.pipeline.clean import clean_scene
 from sssbake.pipeline.load import load_scene
 from sssbake.pipeline.materials import preset
 from sssbake.pipeline.options import BAKE_DEFAULTS
-from sssbake.pipeline.plan_pilot import PRT_BUDGETS, SCREEN_SAMPLES, candidates, pilot_surface, run_pilot
+from sssbake.pipeline.plan_pilot import PRT_BUDGETS, PRT_DIRECTIONS, SCREEN_SAMPLES, candidates, pilot_surface, run_pilot
 from sssbake.pipeline.prt_compress import budget_reference_count
 from sssbake.pipeline.directions import direction_set
 from sssbake.pipeline.verify import LPV_SELF_REFERENCE
@@ -26,11 +26,13 @@ def test_candidates_run_from_cheap_to_dear_and_respect_the_byte_ceiling():
     screen = candidates("screen", {}, options, 5000, deforming=False)
     assert [c.params.get("screen_samples") for c in screen[:len(SCREEN_SAMPLES)]] == list(SCREEN_SAMPLES)
     prt = [c for c in screen if c.technique == "prt"]  # screen falls back to prt on a rigid mesh
-    ds = direction_set(16)
-    counts = [budget_reference_count(c.params["prt_byte_budget"], 5000, ds, 0, "shared", 8) for c in prt]
-    assert counts == sorted(counts) and len(set(counts)) == len(counts)  # each buys more reference points
+    for k in PRT_DIRECTIONS + (16,):  # the given K is tried too
+        at_k = [c for c in prt if c.params["prt_directions"] == k]
+        counts = [budget_reference_count(c.params["prt_byte_budget"], 5000, direction_set(k), 0, "shared", 8)
+                  for c in at_k]
+        assert at_k and counts == sorted(counts) and len(set(counts)) == len(counts)  # each buys more points
     budgets = [c.params["prt_byte_budget"] for c in prt]
-    assert budgets == sorted(budgets) and set(budgets) <= set(PRT_BUDGETS)
+    assert budgets == sorted(budgets) and set(budgets) <= set(PRT_BUDGETS)  # bytes first, then K
     assert all(c.technique == "screen" for c in candidates("screen", {}, options, 5000, deforming=True))
     capped = candidates("prt", {}, options.merged({"max_bytes_per_vertex": 10.0}), 5000, False)
     assert max(c.params["prt_byte_budget"] for c in capped) == 10.0  # the ceiling itself is the last
