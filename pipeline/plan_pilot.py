@@ -5,7 +5,7 @@ error budget; `plan_check` then checks the choice on the full asset.
 The candidates of a technique run from cheap to dear (`candidates`):
 
 * prt: byte budgets per vertex (`PRT_BUDGETS`, capped by ``max_bytes_per_vertex``), each with
-  K light directions from `PRT_DIRECTIONS`. Each sets the reference-point count on the full asset
+  K light directions from `PRT_DIRECTIONS` (within `PRT_Q_BYTES` of light integrals). Each sets the reference-point count on the full asset
   (`prt_compress.budget_reference_count`); the pilot uses the same count, since the count over the
   same area sets the points' spacing, which sets the interpolation error;
 * screen: importance samples N (`SCREEN_SAMPLES`); nothing per vertex, N costs frame time. When
@@ -54,6 +54,10 @@ PRT_BUDGETS = (6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0)
 #: interpolate between directions better. Neither wins everywhere: on the armadillo (potato, verify's
 #: light) 32 B/vertex measured 0.0179 at K = 100, 0.0211 at 200 and 0.0160 at 400.
 PRT_DIRECTIONS = (100, 200, 400)
+#: Most bytes of prt's float64 light integrals q (3 n K) a candidate's bake may hold: the bake keeps
+#: q and its compression error together, and K = 200 on the 800k-vertex dragon (3.8 GB) is what
+#: this 24 GB machine measured to fit.
+PRT_Q_BYTES = 4e9
 SCREEN_SAMPLES = (8, 16, 32, 64)
 LPV_RESOLUTIONS = (16, 24, 32, 48, 64, 96, 128)
 
@@ -118,6 +122,8 @@ def candidates(technique: str, params: dict, options: BakeOptions, vertices: int
         out, seen = [], set()
         for b in budgets:
             for k in sorted(set(PRT_DIRECTIONS) | {options.prt_directions}):  # at equal bytes, fewer K bake faster
+                if 3 * vertices * k * 8 > PRT_Q_BYTES and k > min(PRT_DIRECTIONS):
+                    continue
                 try:
                     count = budget_reference_count(b, vertices, direction_set(k), options.prt_sh_order,
                                                    options.prt_tables, options.prt_weight_bits, options.prt_detail_order)

@@ -34,6 +34,9 @@ def test_candidates_run_from_cheap_to_dear_and_respect_the_byte_ceiling():
     budgets = [c.params["prt_byte_budget"] for c in prt]
     assert budgets == sorted(budgets) and set(budgets) <= set(PRT_BUDGETS)  # bytes first, then K
     assert all(c.technique == "screen" for c in candidates("screen", {}, options, 5000, deforming=True))
+    # 800k vertices: K = 400's integrals would not fit
+    big = candidates("prt", {}, BAKE_DEFAULTS, 800_000, False)
+    assert {c.params["prt_directions"] for c in big} == {100, 200}
     capped = candidates("prt", {}, options.merged({"max_bytes_per_vertex": 10.0}), 5000, False)
     assert max(c.params["prt_byte_budget"] for c in capped) == 10.0  # the ceiling itself is the last
     lpv = candidates("lpv", {"lpv_resolution": 38, "lpv_field": "marble"}, options, 5000, False)
