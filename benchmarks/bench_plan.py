@@ -21,6 +21,7 @@ from pathlib import Path
 
 from sssbake.pipeline.batch import run_batch
 from sssbake.pipeline.config import load_config
+from sssbake.pipeline.verify import BYTES_PER_VERTEX
 
 HERE = Path(__file__).resolve().parent
 
@@ -44,8 +45,8 @@ def main() -> None:
                         cache_dir=str(out / ".sssbake-cache"), progress=False)
     print(f"{summary['ok']} baked, {summary['failed']} failed in {time.perf_counter() - t:.0f} s; budget "
           f"{args.budget:g}, at most {args.max_bytes:g} B/vertex; outputs in {out}")
-    print(f"{'asset':<28} {'mesh / material':<34} {'plan':<8} {'pilot pick -> kept':<58} {'B/vert':>6} "
-          f"{'s':>6} {'RMSE':>7} {'budget':>7} bakes")
+    print(f"{'asset':<22} {'mesh / material':<34} {'pilot pick -> kept':<62} {'B/vert':>6} "
+          f"{'s':>5} {'RMSE':>7} {'budget':>9} bakes")
     for record in summary["assets"]:
         name = Path(record["asset"]).name
         if record["status"] == "failed":
@@ -57,14 +58,16 @@ def main() -> None:
         for e in report["plan"] or [{"mesh": "-", "material": "-", "techniques": []}]:
             technique = e["techniques"][0] if e["techniques"] else None
             pilot = e.get("pilot")
-            picks = "-" if pilot is None else (f"{pilot['candidates'][pilot['chosen']]['label']} -> "
-                                               f"{pilot['candidates'][pilot['pick']]['label']}")
+            short = (lambda i: pilot["candidates"][i]["label"].split(" (")[0]) if pilot else None
+            picks = technique or "none" if pilot is None else f"{short(pilot['chosen'])} -> {short(pilot['pick'])}"
             figures = kept.get(technique, {}) if technique else {}
+            blocks = list(report.get(technique, {}).values()) if technique else []
+            per_vertex = BYTES_PER_VERTEX[technique](blocks[0]) if blocks else 0.0
             rmse = figures.get("rmse_image")
-            print(f"{name:<28} {e['mesh'] + ' / ' + e['material']:<34.34} {technique or 'none':<8} {picks:<58.58} "
-                  f"{figures.get('bytes_per_vertex') or 0.0:>6.1f} {record['seconds']:>6.0f} "
-                  f"{'-' if rmse is None else f'{rmse:.4f}':>7} "
-                  f"{'-' if rmse is None else ('within' if rmse <= args.budget else 'over'):>7} "
+            verdict = ("unchecked" if "skipped" in figures else "-") if rmse is None else (
+                "within" if rmse <= args.budget else "over")
+            print(f"{name:<22.22} {e['mesh'] + ' / ' + e['material']:<34.34} {picks:<62.62} {per_vertex:>6.1f} "
+                  f"{check.get('seconds', record['seconds']):>5.0f} {'-' if rmse is None else f'{rmse:.4f}':>7} {verdict:>9} "
                   f"{len(check.get('attempts', []))}")
     if args.report:
         from sssbake.pipeline.html_report import write_report

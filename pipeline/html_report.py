@@ -124,10 +124,12 @@ def _check_section(report: dict) -> str:
     import matplotlib.pyplot as plt
 
     check = report["check"]
+    if not any(a["rmse_image"] for a in check["attempts"]):  # nothing baked to check
+        return ""
     attempts = ""
     for i, a in enumerate(check["attempts"]):
         picks = ", ".join(f"{k}: candidate {v}" for k, v in a["picks"].items()) or "the pilot's choices"
-        errors = ", ".join(f"{t} {r:.4f}" if r is not None else f"{t} —" for t, r in a["rmse_image"].items())
+        errors = ", ".join(f"{t} {r:.4f}" if r is not None else f"{t} not checked" for t, r in a["rmse_image"].items())
         attempts += (f"<tr><td>{i}{' (kept)' if i == check['kept'] else ''}</td><td>{html.escape(picks)}</td>"
                      f"<td>{html.escape(errors)}</td></tr>")
     verdict = {True: "within", False: "over", None: "unchecked, against"}[check["within"]]
@@ -136,10 +138,12 @@ def _check_section(report: dict) -> str:
     piloted = [e for e in report.get("plan", []) if e.get("pilot")]
     if not piloted:
         return text
-    fig, axes = plt.subplots(1, len(piloted), figsize=(6 * len(piloted), 3.6), squeeze=False)
+    # wide enough for a label per candidate (prt has one per byte budget and K)
+    width = max(max(0.32 * len(e["pilot"]["candidates"]), 5.0) for e in piloted)
+    fig, axes = plt.subplots(1, len(piloted), figsize=(width * len(piloted), 4.2), squeeze=False)
     for ax, e in zip(axes[0], piloted):
         pilot = e["pilot"]
-        labels = [c["label"] for c in pilot["candidates"]]
+        labels = [c["label"].split(" (")[0] for c in pilot["candidates"]]  # without the point count
         measured = [(i, r["rmse_image"]) for i, r in enumerate(pilot["rows"]) if r["rmse_image"] is not None]
         ax.plot([i for i, _ in measured], [r for _, r in measured], "o-", label=f"pilot ({pilot['vertices']} vertices)")
         for a in check["attempts"]:
@@ -149,7 +153,7 @@ def _check_section(report: dict) -> str:
                 ax.plot([at], [r], "rs")
         ax.plot([], [], "rs", label="full asset")
         ax.axhline(pilot["budget"], color="k", lw=1, ls="--", label="budget")
-        ax.set_xticks(range(len(labels)), labels, rotation=60, ha="right", fontsize=6)
+        ax.set_xticks(range(len(labels)), labels, rotation=60, ha="right", fontsize=7)
         ax.set(ylabel="image RMSE", title=f"{e['mesh']} / {e['material']}")
         ax.legend(fontsize=7)
     fig.tight_layout()
