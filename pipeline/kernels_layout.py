@@ -72,7 +72,8 @@ def encode_kernels(kernels: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarr
     """
     top = _code_max(bits)
     scales = np.abs(kernels).max(axis=1).astype(np.float32)
-    factor = np.divide(top, scales, out=np.zeros(scales.shape), where=scales > 0)
+    # in float64: M / a subnormal float32 scale overflows float32, and inf · 0 made NaN codes
+    factor = np.divide(top, scales.astype(np.float64), out=np.zeros(scales.shape), where=scales > 0)
     codes = np.empty(kernels.shape, dtype=_code_dtype(bits))
     for lo in range(0, len(kernels), _ENCODE_CHUNK):
         hi = lo + _ENCODE_CHUNK

@@ -238,3 +238,14 @@ def test_kernels_extras_match_the_documented_schema(tmp_path):
     for bad in ({"kernelBits": 12}, {"kernelSize": 1}, {"technique": "prt"}):
         with pytest.raises(jsonschema.ValidationError):
             mesh_schema.validate({**mesh, "kernels": {**mesh["kernels"], **bad}})
+
+
+def test_subnormal_kernels_keep_their_codes():
+    # M / 3e-40 overflows float32: the factor must be float64, or zeros became NaN codes (inf · 0)
+    kernels = np.zeros((1, 9, 3), np.float32)
+    kernels[0, :, 0] = 1e-40
+    kernels[0, 4, 0] = -3e-40
+    codes, scales = encode_kernels(kernels, 8)
+    np.testing.assert_array_equal(codes[0, :, 0], [42, 42, 42, 42, -127, 42, 42, 42, 42])  # rint(127 / 3)
+    assert not codes[0, :, 1:].any() and not scales[0, 1:].any()
+    np.testing.assert_allclose(decode_kernels(codes, scales, 8)[0, :, 0], kernels[0, :, 0], rtol=0.01, atol=0)
