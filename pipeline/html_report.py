@@ -91,7 +91,10 @@ def _asset_section(name: str, record: dict, report: dict, rows: list[str]) -> st
     table = ("<table><tr><th>technique</th><th>bytes / vertex</th><th>RMSE image</th><th>RMSE object</th>"
              "<th>Lambert RMSE</th><th>frame ms (plain)</th><th>budget</th><th>reference | technique | Lambert</th></tr>"
              f"{''.join(rows)}</table>") if rows else "<p>No technique baked: the standard fallback only.</p>"
-    return (f'<div class="asset"><h2>{name}</h2><p>{record["status"]}, bake {report.get("seconds", 0):.2f} s, '
+    check = report.get("check")
+    spent = (f" (the last of {len(check['attempts'])}; with the pilot and the checks {check['seconds']:.1f} s)"
+             if check and "seconds" in check else "")
+    return (f'<div class="asset"><h2>{name}</h2><p>{record["status"]}, bake {report.get("seconds", 0):.2f} s{spent}, '
             f'{len(report.get("warnings", []))} warnings</p>{"<ul>" + warnings + "</ul>" if warnings else ""}'
             f"{plan_table}{table}</div>")
 

@@ -54,6 +54,8 @@ def test_the_page_holds_every_asset_its_plan_and_pictures(page):
     assert len(verdicts) == 2
     assert f"{verdicts.count('within')} of 2 verified techniques within the RMSE budget 0.01" in text
     assert "within 40 bytes per vertex" in text  # the planner gave prt the byte budget, and it held
+    # the budget check: its attempts and what the whole of it took, per asset
+    assert text.count("<h3>Budget check (") == 2 and text.count("with the pilot and the checks") == 2
     assert float(rows[1][1]) <= 40.0
 
 
