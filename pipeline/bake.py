@@ -43,7 +43,7 @@ from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
 STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
-                  "spectral": 1, "screen": 1, "lpv": 2, "pilot": 2}
+                  "spectral": 1, "screen": 1, "lpv": 2, "pilot": 3}
 
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 
@@ -259,12 +259,14 @@ def bake_asset(
                            surface, thick.thickness, mesh_mm)
                 if options.budget_rmse is not None and e.techniques:
                     found = candidates(e.techniques[0], e.params, options, len(surface.positions), mesh.deforming)
+                    world = np.asarray((scene.mesh_instances().get(mi) or [np.eye(4)])[0])  # as verify sees it
                     pilot, _ = runner.run(
                         "pilot", STAGE_VERSIONS["pilot"], mesh_key,
                         {"material": material_of[m].to_json(), "mm": mesh_mm, "options": options.to_json(),
-                         "candidates": [c.__dict__ for c in found]},
+                         "candidates": [c.__dict__ for c in found],
+                         "world": world.tolist()},
                         run_pilot, found, surface, mesh_mm, material_of[m], options, options.budget_rmse,
-                        len(surface.positions))
+                        len(surface.positions), world)
                     e = piloted(e, pilot, options.budget_rmse, (picks or {}).get(e.key))
                 entries.append(e)
             plan += entries

@@ -129,8 +129,9 @@ def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
                 from .plan_pilot import candidates, run_pilot
 
                 found = candidates(entry.techniques[0], entry.params, options, len(surface.positions), mesh.deforming)
+                world = (assignment.scene.mesh_instances().get(mi) or [None])[0]
                 entry = piloted(entry, run_pilot(found, surface, mesh_mm, material, options, options.budget_rmse,
-                                                 len(surface.positions)), options.budget_rmse)
+                                                 len(surface.positions), world), options.budget_rmse)
             entries.append(entry)
     return entries
 

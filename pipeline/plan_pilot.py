@@ -95,7 +95,7 @@ class Pilot:
     chosen : int
         Index into `candidates`.
     met : bool
-        Whether the chosen candidate met the pilot's share of the budget.
+        Whether the chosen candidate met the budget in the pilot.
     vertices : int
         The subsample's vertices.
     reference : str
@@ -155,7 +155,8 @@ def pilot_surface(surface: Surface, vertices: int = PILOT_VERTICES) -> Surface:
 
 
 def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, material: Material,
-              options: BakeOptions, budget: float, vertices: int, light=None) -> Pilot:
+              options: BakeOptions, budget: float, vertices: int, world: np.ndarray | None = None,
+              light=None) -> Pilot:
     """Measure `found` (`candidates`) in order on `surface`'s subsample and choose the first within
     `budget` (module docstring).
 
@@ -165,25 +166,31 @@ def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, mate
         The mesh's welded surface (file units).
     vertices : int
         The full surface's welded vertices (prt's counts are the full asset's).
+    world : (4, 4) float64, optional
+        The mesh's first instance's world matrix (identity by default): the pilot sees the mesh
+        as verify does, from its camera under its light, both in world space.
     light : (3,) float, optional
-        Towards the light (verify's `DEFAULT_LIGHT` by default).
+        World direction towards the light (verify's `DEFAULT_LIGHT` by default).
     """
     from .render import Renderer, RenderLight, fit_camera
 
     if not found:
         raise ValueError("pilot: no candidate to measure")
     small = pilot_surface(surface, PILOT_VERTICES)
+    world = np.eye(4) if world is None else np.asarray(world, dtype=np.float64)
     direction = np.asarray(DEFAULT_LIGHT if light is None else light, dtype=np.float64)
     direction /= np.linalg.norm(direction)
+    local = np.linalg.solve(world[:3, :3], direction)  # the reference works in the mesh's frame
+    local /= np.linalg.norm(local)
     renderer = Renderer((PILOT_SIZE, PILOT_SIZE))
-    camera = fit_camera(small.positions)
+    camera = fit_camera(small.positions @ world[:3, :3].T + world[:3, 3])
     lit = RenderLight(False, tuple(direction), 1.0)
-    base = dict(positions=small.positions, normals=small.normals, faces=small.faces, model=np.eye(4), eta=material.eta)
+    base = dict(positions=small.positions, normals=small.normals, faces=small.faces, model=world, eta=material.eta)
     # a heterogeneous medium has no closed-form reference: each grid against verify's, the same field at 2x
     veined = found[0].technique == "lpv" and options.lpv_field != "homogeneous"
     try:
         if not veined:
-            q = reference_scattering(small, mm_per_unit, material, Light("directional", tuple(direction)))
+            q = reference_scattering(small, mm_per_unit, material, Light("directional", tuple(local)))
             reference, mask = renderer.render([{**base, "q": q.T}], camera, lit)
             exposure = shared_exposure(reference, mask)
         maker = _Items(small, mm_per_unit, material, options, vertices)

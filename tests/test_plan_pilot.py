@@ -86,3 +86,20 @@ def test_a_veined_medium_is_measured_against_the_same_field_at_twice_the_resolut
     errors = [r["rmse_image"] for r in tight.rows]
     assert len(errors) == 3 and not tight.met and errors[0] == loose.rows[0]["rmse_image"]
     assert errors[2] < errors[0]  # finer grids sit nearer their own 2x
+
+
+def test_the_pilot_sees_the_mesh_where_its_node_puts_it(tmp_path):
+    ball = surface_of(tmp_path, trimesh.creation.icosphere(subdivisions=2, radius=1.0))
+    options = BAKE_DEFAULTS
+    found = candidates("screen", {}, options, len(ball.positions), True)[:1]
+    at_origin = run_pilot(found, ball, 100.0, preset("skin1"), options, 0.5, len(ball.positions))
+    moved = np.eye(4)
+    moved[:3, 3] = (40.0, -7.0, 3.0)  # the camera follows the object: the same picture
+    away = run_pilot(found, ball, 100.0, preset("skin1"), options, 0.5, len(ball.positions), moved)
+    np.testing.assert_allclose(away.rows[0]["rmse_image"], at_origin.rows[0]["rmse_image"], rtol=1e-3)
+    # a ball turned a quarter round under the same world light looks the same, if the reference
+    # is lit from the light's direction in the ball's own frame (from the world one: the wrong side)
+    turn = np.eye(4)
+    turn[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    turned = run_pilot(found, ball, 100.0, preset("skin1"), options, 0.5, len(ball.positions), turn)
+    np.testing.assert_allclose(turned.rows[0]["rmse_image"], at_origin.rows[0]["rmse_image"], rtol=0.15)
