@@ -206,6 +206,7 @@ def bake_asset(
     lpv_reports: dict[str, dict] = {}
 
     meshes = list(scene.meshes)
+    instances = scene.mesh_instances()
     images, textures = list(scene.images), list(scene.textures)
     attributes: dict[tuple[int, int], tuple[VertexAttribute, ...]] = {}
     scattering: dict[int, ScatteringMaterial] = {}
@@ -250,25 +251,23 @@ def bake_asset(
             options.thickness_rays, options.atlas_padding,
         )
         if auto:
-            from .plan import decide, piloted  # plan reads the bake's helpers: imported here, not at the top
-            from .plan_pilot import candidates, run_pilot
+            from .plan import decide, with_pilot  # plan reads the bake's helpers: imported here, not at the top
+            from .plan_pilot import run_pilot
+
+            world = np.asarray((instances.get(mi) or [np.eye(4)])[0])  # the pilot sees the mesh as verify does
+
+            def cached_pilot(found, surface, mm, material, *rest):  # `run_pilot` as a cached stage
+                return runner.run("pilot", STAGE_VERSIONS["pilot"], mesh_key,
+                                  {"material": material.to_json(), "mm": mm, "options": options.to_json(),
+                                   "candidates": [c.__dict__ for c in found], "world": world.tolist()},
+                                  run_pilot, found, surface, mm, material, *rest)[0]
 
             entries = []
             for m in mats:
                 e = decide(str(path), mesh.name, scene.materials[m].name, material_of[m], mesh.deforming, options,
                            surface, thick.thickness, mesh_mm)
-                if options.budget_rmse is not None and e.techniques:
-                    found = candidates(e.techniques[0], e.params, options, len(surface.positions), mesh.deforming)
-                    world = np.asarray((scene.mesh_instances().get(mi) or [np.eye(4)])[0])  # as verify sees it
-                    pilot, _ = runner.run(
-                        "pilot", STAGE_VERSIONS["pilot"], mesh_key,
-                        {"material": material_of[m].to_json(), "mm": mesh_mm, "options": options.to_json(),
-                         "candidates": [c.__dict__ for c in found],
-                         "world": world.tolist()},
-                        run_pilot, found, surface, mesh_mm, material_of[m], options, options.budget_rmse,
-                        len(surface.positions), world)
-                    e = piloted(e, pilot, options.budget_rmse, (picks or {}).get(e.key))
-                entries.append(e)
+                entries.append(with_pilot(e, surface, mesh_mm, material_of[m], mesh.deforming, options, world,
+                                          (picks or {}).get(e.key), cached_pilot))
             plan += entries
             techniques = {t for e in entries for t in e.techniques}
             mesh_options = options.merged({k: v for e in entries for k, v in e.params.items()})
@@ -457,7 +456,7 @@ def bake_asset(
             "warnings": warnings,
         }
         with atomic_path(outputs[2]) as tmp:
-            Path(tmp).write_text(json.dumps(report, indent=1, default=_json_default))
+            Path(tmp).write_text(json.dumps(report, indent=1, default=json_default))
     except BaseException:
         for p in written:
             p.unlink(missing_ok=True)
@@ -487,7 +486,8 @@ def _validate(runner: StageRunner, outputs, options: BakeOptions, warnings: list
     return out
 
 
-def _json_default(o):
+def json_default(o):
+    """JSON for the numpy values a report holds (`json.dumps`' default)."""
     if isinstance(o, np.ndarray):
         return o.tolist()
     if isinstance(o, (np.floating, np.integer)):

@@ -121,11 +121,6 @@ def _technique_row(technique: str, report: dict, figures: dict, budget: float | 
 def _check_section(report: dict) -> str:
     """The budget check's attempts, and per piloted entry its pilot's RMSE per candidate against
     the full asset's at the candidates baked."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     check = report["check"]
     if not any(a["rmse_image"] for a in check["attempts"]):  # nothing baked to check
         return ""
@@ -141,6 +136,11 @@ def _check_section(report: dict) -> str:
     piloted = [e for e in report.get("plan", []) if e.get("pilot")]
     if not piloted:
         return text
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     # wide enough for a label per candidate (prt has one per byte budget and K)
     width = max(max(0.32 * len(e["pilot"]["candidates"]), 5.0) for e in piloted)
     fig, axes = plt.subplots(1, len(piloted), figsize=(width * len(piloted), 4.2), squeeze=False)

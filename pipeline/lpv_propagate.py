@@ -32,6 +32,10 @@ from .lpv_matrices import DIRECTIONS, propagation_matrices
 RENDER_WEIGHTS = (np.sqrt(1.0 / (4.0 * np.pi)), 0.5 * np.sqrt(3.0 / (4.0 * np.pi)))
 
 
+#: Most propagation steps a frame may take.
+MAX_STEPS = 1024
+
+
 @dataclass(frozen=True)
 class LpvOptions:
     """Attributes
@@ -46,8 +50,8 @@ class LpvOptions:
     shadow_size: int = 256
 
     def check(self) -> None:
-        if not (isinstance(self.steps, int) and 1 <= self.steps <= 1024):
-            raise ValueError(f"lpv: steps must be a whole number in [1, 1024], got {self.steps!r}")
+        if not (isinstance(self.steps, int) and 1 <= self.steps <= MAX_STEPS):
+            raise ValueError(f"lpv: steps must be a whole number in [1, {MAX_STEPS}], got {self.steps!r}")
         if not (isinstance(self.shadow_size, int) and 1 <= self.shadow_size <= 8192):
             raise ValueError(f"lpv: shadow_size must be a whole number in [1, 8192], got {self.shadow_size!r}")
 

@@ -7,6 +7,7 @@ from dataclasses import asdict, dataclass, fields, replace
 from .kernels_layout import KERNEL_BITS
 from .kernels_precompute import KERNELS_DEFAULTS, KernelsOptions
 from .lpv_grid import LPV_GRID_DEFAULTS, LpvGridOptions
+from .lpv_propagate import MAX_STEPS
 from .lpv_stage import FIELDS as LPV_FIELDS
 from .marble_field import MARBLE_DEFAULTS, MarbleOptions
 from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, TABLES, WEIGHT_BITS, WEIGHTS, PrtCompressOptions
@@ -226,8 +227,8 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"max_bytes_per_vertex must be a positive number, got {o.max_bytes_per_vertex!r}")
     if o.budget_rmse is not None and not (isinstance(o.budget_rmse, (int, float)) and 0 < o.budget_rmse < 1):
         raise ValueError(f"budget_rmse must be an image RMSE in (0, 1), got {o.budget_rmse!r}")
-    if not (isinstance(o.lpv_max_steps, int) and 1 <= o.lpv_max_steps <= 1024):
-        raise ValueError(f"lpv_max_steps must be a whole number in [1, 1024], got {o.lpv_max_steps!r}")
+    if not (isinstance(o.lpv_max_steps, int) and 1 <= o.lpv_max_steps <= MAX_STEPS):
+        raise ValueError(f"lpv_max_steps must be a whole number in [1, {MAX_STEPS}], got {o.lpv_max_steps!r}")
     for name in ("spectral_variant", "spectral_basis"):
         if not isinstance(getattr(o, name), bool):
             raise ValueError(f"{name} must be true or false, got {getattr(o, name)!r}")

@@ -106,6 +106,7 @@ def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
     clean = clean_scene(load_scene(str(path)))
     mm_per_unit, _ = resolve_scale_mm(clean.scene, options)
     assignment = assign_materials(clean.scene, options, mm_per_unit)
+    instances = assignment.scene.mesh_instances()
     entries = []
     for mi, mesh in enumerate(assignment.scene.meshes):  # primitives without a material got one
         used = sorted({p.material for p in mesh.primitives if p.material is not None})
@@ -125,15 +126,33 @@ def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
             if thickness is None:  # one thickness bake per mesh, only for translucent meshes
                 thickness = bake_thickness(surface.positions, surface.faces, surface.normals, cap=diagonal).thickness
             entry = decide(str(path), mesh.name, name, material, mesh.deforming, options, surface, thickness, mesh_mm)
-            if options.budget_rmse is not None and entry.techniques:
-                from .plan_pilot import candidates, run_pilot
-
-                found = candidates(entry.techniques[0], entry.params, options, len(surface.positions), mesh.deforming)
-                world = (assignment.scene.mesh_instances().get(mi) or [None])[0]
-                entry = piloted(entry, run_pilot(found, surface, mesh_mm, material, options, options.budget_rmse,
-                                                 len(surface.positions), world), options.budget_rmse)
-            entries.append(entry)
+            entries.append(with_pilot(entry, surface, mesh_mm, material, mesh.deforming, options,
+                                      (instances.get(mi) or [None])[0]))
     return entries
+
+
+def with_pilot(entry: PlanEntry, surface: Surface, mesh_mm: float, material, deforming: bool, options: BakeOptions,
+               world: np.ndarray | None = None, pick: int | None = None, measure=None) -> PlanEntry:
+    """`entry` after the pilot (`plan_pilot`, `piloted`) when `options.budget_rmse` is set and it
+    plans a technique; `entry` itself otherwise.
+
+    Parameters
+    ----------
+    world : (4, 4) float64, optional
+        The mesh's first instance's world matrix.
+    pick : int, optional
+        The budget check's candidate to bake instead of the pilot's choice.
+    measure : callable, optional
+        Called with `plan_pilot.run_pilot`'s arguments in its place (the bake caches it as a stage).
+    """
+    if options.budget_rmse is None or not entry.techniques:
+        return entry
+    from .plan_pilot import candidates, run_pilot
+
+    found = candidates(entry.techniques[0], entry.params, options, len(surface.positions), deforming)
+    pilot = (measure or run_pilot)(found, surface, mesh_mm, material, options, options.budget_rmse,
+                                   len(surface.positions), world)
+    return piloted(entry, pilot, options.budget_rmse, pick)
 
 
 def piloted(entry: PlanEntry, pilot, budget: float, pick: int | None = None) -> PlanEntry:

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from ..exporters.atomic import atomic_path
-from .bake import BakeResult, bake_asset, job_key
+from .bake import BakeResult, bake_asset, job_key, json_default
 from .cache import StageCache, file_digest
 from .options import BakeOptions, TECHNIQUES
 from .plan_pilot import PILOT_SIZE
@@ -109,7 +109,7 @@ def bake_within_budget(path: Path, options: BakeOptions, out_base: Path, cache: 
         "figures": attempts[kept]["figures"],
     }
     with atomic_path(report_path) as tmp:
-        Path(tmp).write_text(json.dumps(report, indent=1, default=str))
+        Path(tmp).write_text(json.dumps(report, indent=1, default=json_default))
     return BakeResult(report, result.outputs)
 
 

@@ -43,7 +43,7 @@ from .lpv_data import LpvGrid
 from .lpv_grid import voxelise
 from .lpv_layout import LpvSource, lpv_bytes, lpv_tables
 from .lpv_matrices import propagation_matrices
-from .lpv_propagate import LPV_DEFAULTS
+from .lpv_propagate import LPV_DEFAULTS, MAX_STEPS
 from .spectral_precompute import SPECTRAL_DEFAULTS, naive_parameters
 from .visibility import direction_visibility, point_visibility
 
@@ -68,8 +68,6 @@ LPV_SELF_REFERENCE = "lpv 2x (heterogeneous medium: no closed-form reference)"
 #: Finest grid `lpv_reference` builds, cells along the longest side: 2x a 128³ bake, 16.8 M cells
 #: (8x its cells and 16x its propagation work); finer bakes cannot be checked against 2x.
 LPV_REFERENCE_MAX_RESOLUTION = 256
-#: Propagation steps the runtime's passes accept (`lpv_propagate.LpvOptions`).
-LPV_MAX_STEPS = 1024
 
 
 def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT, size: int = 512,
@@ -347,7 +345,7 @@ def lpv_reference(surface: Surface, source: LpvSource, grid: LpvGrid, steps: int
                          f"{LPV_REFERENCE_MAX_RESOLUTION} cells")
     options = replace(source.grid, resolution=finer)
     voxels = voxelise(surface, source.mm_per_unit, source.material_field(), grid.eta, options)
-    finer_steps = min(max(1, int(round(steps * grid.cell_mm / voxels.cell_mm))), LPV_MAX_STEPS)
+    finer_steps = min(max(1, int(round(steps * grid.cell_mm / voxels.cell_mm))), MAX_STEPS)
     return voxels, render_scales(voxels, finer_steps), finer_steps, finer
 
 
