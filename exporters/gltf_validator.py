@@ -49,6 +49,10 @@ class ValidationMessage:
     pointer: str
     message: str
 
+    def to_json(self) -> dict:
+        """The message in the validator's own key names."""
+        return {"code": self.code, "severity": self.severity, "pointer": self.pointer, "message": self.message}
+
 
 @dataclass(frozen=True)
 class ValidationReport:
@@ -89,10 +93,7 @@ class ValidationReport:
             "numWarnings": self.num_warnings,
             "numInfos": self.num_infos,
             "numHints": self.num_hints,
-            "messages": [
-                {"code": m.code, "severity": m.severity, "pointer": m.pointer, "message": m.message}
-                for m in self.messages
-            ],
+            "messages": [m.to_json() for m in self.messages],
         }
 
 
