@@ -47,8 +47,9 @@ class BakeOptions:
     validate : bool
         Run the Khronos glTF validator and UsdValidation on every export.
     techniques : tuple of str
-        Subsurface techniques to bake besides the standard fallback (see `TECHNIQUES`), or
-        ``("auto",)``: the planner (`plan.decide`) chooses per mesh and material.
+        Subsurface techniques to bake besides the standard fallback (see `TECHNIQUES`);
+        ``("auto",)`` (the default): the planner (`plan.decide`) chooses per mesh and material;
+        ``()`` (``"none"`` in a flag or config): the fallback only.
     prt_directions : int
         prt: light directions K.
     prt_energy_dropped : float
@@ -97,7 +98,7 @@ class BakeOptions:
     atlas_padding: int = 4
     thickness_rays: int = 1
     validate: bool = True
-    techniques: tuple[str, ...] = ()
+    techniques: tuple[str, ...] = ("auto",)
     prt_directions: int = 200
     prt_energy_dropped: float = SCATTER_DEFAULTS.energy_dropped
     prt_mode: str = PRT_COMPRESS_DEFAULTS.mode
@@ -167,14 +168,25 @@ class BakeOptions:
         unknown = sorted(set(overrides) - known)
         if unknown:
             raise ValueError(f"unknown option(s) {unknown}; known: {sorted(known)}")
-        if isinstance(overrides.get("techniques"), (list, str)):
-            value = overrides["techniques"]
-            names = value.split(",") if isinstance(value, str) else value
-            overrides = {**overrides, "techniques": tuple(t.strip() for t in names if t.strip())}
+        if isinstance(overrides.get("techniques"), (list, tuple, str)):
+            overrides = {**overrides, "techniques": parse_techniques(overrides["techniques"])}
         return replace(self, **overrides)
 
 
 BAKE_DEFAULTS = BakeOptions()
+
+
+def parse_techniques(value: str | list | tuple) -> tuple[str, ...]:
+    """Technique names from a flag (``"prt,screen"``) or a config list; ``"none"`` alone means none."""
+    names = value.split(",") if isinstance(value, str) else value
+    if not all(isinstance(t, str) for t in names):
+        raise ValueError(f"techniques must be names, got {value!r}")
+    names = tuple(t.strip() for t in names if t.strip())
+    if "none" in names:
+        if len(names) > 1:
+            raise ValueError("techniques: none bakes only the fallback; give it alone")
+        return ()
+    return names
 
 
 def check_options(o: BakeOptions) -> None:
@@ -189,7 +201,7 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"thickness_rays must be in [1, 64], got {o.thickness_rays}")
     unknown = sorted(set(o.techniques) - set(TECHNIQUES) - {"auto"})
     if unknown:
-        raise ValueError(f"unknown technique(s) {unknown}; available: {list(TECHNIQUES)} or auto")
+        raise ValueError(f"unknown technique(s) {unknown}; available: {list(TECHNIQUES)}, auto or none")
     if "auto" in o.techniques and len(o.techniques) > 1:
         raise ValueError("techniques: auto plans every technique itself; give it alone")
     if not (4 <= o.prt_directions <= 4096):

@@ -32,7 +32,14 @@ def test_samples_bake_clean(baked_samples):
         assert report["validation"]["gltf"]["errors"] == 0, report["validation"]
         assert report["validation"]["gltf"]["warnings"] == 0, report["validation"]
         assert report["validation"]["usd"]["errors"] == 0, report["validation"]
-        assert report["stages"]["simplify"]["skipped"]
+    # techniques default to auto: every translucent sample gets SSS data, each choice with its reason
+    for name in ("sphere", "torus", "thin_slab", "candle"):
+        report = json.loads((out / f"{name}.report.json").read_text())
+        (entry,) = report["plan"]
+        assert entry["techniques"] == ["prt"] and entry["reasons"][0].startswith("thin or small"), entry
+        assert report["prt"] and report["prt"][entry["mesh"]]["bytesPerVertex"]["total"] > 0
+    blob = json.loads((out / "blob.report.json").read_text())
+    assert blob["plan"] == [] and blob["stages"]["simplify"]["skipped"]  # the config names lpv
     slab = json.loads((out / "thin_slab.report.json").read_text())
     assert slab["materials"]["sssbake_default"]["scattering"]["name"] == "skin1"
     # the heterogeneous sample: veined marble, an lpv grid whose absorption varies
@@ -70,7 +77,8 @@ def test_stage_cache_serves_a_rebake(baked_samples, tmp_path):
 def test_inspect_shows_thickness(baked_samples, capsys):
     _, out, _ = baked_samples
     assert main(["inspect", str(out / "sphere.glb")]) == 0
-    assert "_THICKNESS" in capsys.readouterr().out
+    shown = json.loads(capsys.readouterr().out)
+    assert "_THICKNESS" in json.dumps(shown) and shown["meshes"][0]["sssbake"]["prt"]["technique"] == "prt"
     assert main(["inspect", str(out / "sphere.usdc")]) == 0
     assert "primvars:sss:thickness" in capsys.readouterr().out
 
@@ -252,10 +260,23 @@ def test_screen_bake_exports_the_material_tables(tmp_path):
     assert tables["offsets"].shape == (11, 2) and tables["uniform"] == 2
 
 
-def test_screen_is_skipped_when_not_asked(baked_samples):
-    _, out, _ = baked_samples
+def test_screen_is_skipped_when_not_asked(baked_samples, tmp_path):
+    src, out, _ = baked_samples
     report = json.loads((out / "sphere.report.json").read_text())
-    assert report["screen"] == {} and "not requested" in report["stages"]["screen"]["skipped"]
+    assert report["screen"] == {} and "the plan chose it for no object" in report["stages"]["screen"]["skipped"]
+    # none: the fallback only, every technique skipped as not requested
+    assert main(["bake", str(src / "sphere.obj"), "-o", str(tmp_path), "--config", str(src / "sssbake.toml"),
+                 "--techniques", "none", "-q"]) == 0
+    report = json.loads((tmp_path / "sphere.report.json").read_text())
+    assert report["plan"] == [] and report["prt"] == {}
+    assert all("not requested" in report["stages"][t]["skipped"] for t in ("prt", "kernels", "spectral", "screen", "lpv"))
+
+
+def test_none_must_stand_alone(baked_samples, tmp_path, capsys):
+    src, _, _ = baked_samples
+    assert main(["bake", str(src / "sphere.obj"), "-o", str(tmp_path), "--scale-mm", "1",
+                 "--techniques", "none,prt", "-q"]) == 1
+    assert "none bakes only the fallback; give it alone" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("flags, needle", [

@@ -58,7 +58,8 @@ def test_files_without_prt_get_a_clear_error(tmp_path, capsys):
     src = tmp_path / "in"
     generate(src)
     out = tmp_path / "out"
-    assert main(["bake", str(src / "sphere.obj"), "-o", str(out), "--config", str(src / "sssbake.toml"), "-q"]) == 0
+    assert main(["bake", str(src / "sphere.obj"), "-o", str(out), "--config", str(src / "sssbake.toml"),
+                 "--techniques", "none", "-q"]) == 0
     capsys.readouterr()
     assert main(["verify", str(out / "sphere.glb")]) == 1
     assert "bake with --techniques prt" in capsys.readouterr().err
