@@ -3,7 +3,9 @@
 A stage's key hashes its upstream key (ultimately the input file's bytes), the stage's name and
 version, and the options it reads; a re-run with unchanged inputs loads the result instead of
 computing it. Entries are pickles written atomically, so an interrupted run never leaves a
-half-written entry.
+half-written entry, and each carries the SHA-256 of its payload: a bit flipped on disk (or a
+truncated copy on a shared cache folder) is detected, reported and recomputed instead of
+silently feeding a wrong value downstream.
 """
 
 from __future__ import annotations
@@ -31,24 +33,50 @@ def stage_key(upstream: str, stage: str, version: int, params: dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+#: Entry header: format tag, then the payload's SHA-256 (32 bytes), then the pickled payload.
+MAGIC = b"sssbake-cache-1\n"
+
+
 class StageCache:
-    """Pickled stage results under `folder` (None: caching off)."""
+    """Pickled, checksummed stage results under `folder` (None: caching off).
+
+    Attributes
+    ----------
+    corrupt : list of str
+        Keys of entries found damaged since this cache object was made (each was deleted, so
+        the stage recomputes and rewrites it).
+    """
 
     def __init__(self, folder: str | os.PathLike | None):
         self.folder = Path(folder) if folder is not None else None
+        self.corrupt: list[str] = []
 
     def _path(self, key: str) -> Path:
         return self.folder / key[:2] / f"{key}.pkl"
 
     def get(self, key: str):
-        """The cached value, or None when absent or unreadable (a stale entry is just recomputed)."""
+        """The cached value, or None when absent, damaged (recorded in `corrupt`) or unreadable."""
         if self.folder is None:
             return None
+        path = self._path(key)
         try:
-            with open(self._path(key), "rb") as f:
-                return pickle.load(f)
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
+            data = path.read_bytes()
+        except OSError:
             return None
+        head = len(MAGIC) + 32
+        if data[:len(MAGIC)] != MAGIC or hashlib.sha256(data[head:]).digest() != data[len(MAGIC):head]:
+            self._discard(key, path)
+            return None
+        try:
+            return pickle.loads(data[head:])
+        except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, ValueError):
+            # intact but unloadable (written by another sssbake whose classes moved): recompute
+            self._discard(key, path)
+            return None
+
+    def _discard(self, key: str, path: Path) -> None:
+        self.corrupt.append(key)
+        path.unlink(missing_ok=True)
 
     def put(self, key: str, value) -> None:
         if self.folder is None:
@@ -57,8 +85,9 @@ class StageCache:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
         try:
+            payload = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
             with os.fdopen(fd, "wb") as f:
-                pickle.dump(value, f, protocol=pickle.HIGHEST_PROTOCOL)
+                f.write(MAGIC + hashlib.sha256(payload).digest() + payload)
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)

@@ -17,10 +17,13 @@ class StageRecord:
     seconds: float = 0.0
     runs: int = 0
     cached: int = 0
+    corrupt: int = 0
     skipped: str | None = None
 
     def to_json(self) -> dict:
         out = {"seconds": round(self.seconds, 4), "runs": self.runs, "cached": self.cached}
+        if self.corrupt:
+            out["corrupt_cache_entries"] = self.corrupt
         if self.skipped:
             out["skipped"] = self.skipped
         return out
@@ -63,7 +66,9 @@ class StageRunner:
         key = stage_key(upstream, name, version, params)
         rec = self.records.setdefault(name, StageRecord(name))
         with self._measure(rec):
+            damaged = len(self.cache.corrupt)
             value = self.cache.get(key)
+            rec.corrupt += len(self.cache.corrupt) - damaged
             if value is None:
                 value = fn(*args)
                 self.cache.put(key, value)

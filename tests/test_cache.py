@@ -51,3 +51,26 @@ def test_disabled_cache_never_stores(tmp_path):
     cache = StageCache(None)
     cache.put("k", 1)
     assert cache.get("k") is None
+
+
+def test_a_flipped_bit_is_detected_reported_and_recomputed(tmp_path):
+    calls = []
+
+    def work():
+        calls.append(1)
+        return np.linspace(0.0, 1.0, 1000)
+
+    StageRunner(StageCache(tmp_path)).run("stage", 1, "up", {}, work)
+    path = next(tmp_path.rglob("*.pkl"))
+    data = bytearray(path.read_bytes())
+    data[-100] ^= 0x10  # inside a float of the payload: still a loadable pickle, a wrong value
+    path.write_bytes(bytes(data))
+    runner = StageRunner(StageCache(tmp_path))
+    value, _ = runner.run("stage", 1, "up", {}, work)
+    assert calls == [1, 1] and runner.records["stage"].corrupt == 1 and runner.records["stage"].cached == 0
+    np.testing.assert_array_equal(value, np.linspace(0.0, 1.0, 1000))
+    assert runner.to_json()["stage"]["corrupt_cache_entries"] == 1
+    # the rewritten entry is whole again: the next run is a plain hit
+    again = StageRunner(StageCache(tmp_path))
+    again.run("stage", 1, "up", {}, work)
+    assert calls == [1, 1] and again.records["stage"].cached == 1 and again.records["stage"].corrupt == 0

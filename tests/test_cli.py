@@ -74,6 +74,25 @@ def test_stage_cache_serves_a_rebake(baked_samples, tmp_path):
     assert (tmp_path / "sphere.glb").read_bytes() == (out / "sphere.glb").read_bytes()
 
 
+def test_a_damaged_cache_entry_is_recomputed_and_reported(tmp_path):
+    src = tmp_path / "in"
+    generate(src)
+    cache = tmp_path / "cache"
+    args = ["bake", str(src / "torus.ply"), "--config", str(src / "sssbake.toml"), "--techniques", "none",
+            "--atlas-resolution", "64", "--cache-dir", str(cache), "-q"]
+    assert main([*args, "-o", str(tmp_path / "a")]) == 0
+    for entry in cache.rglob("*.pkl"):  # one flipped bit in every entry's payload
+        data = bytearray(entry.read_bytes())
+        data[len(data) // 2] ^= 0x01
+        entry.write_bytes(bytes(data))
+    assert main([*args, "-o", str(tmp_path / "b")]) == 0
+    report = json.loads((tmp_path / "b" / "torus.report.json").read_text())
+    damaged = [w for w in report["warnings"] if w.startswith("stage cache:")]
+    assert damaged and all("deleted and recomputed" in w for w in damaged)
+    assert report["stages"]["load"]["corrupt_cache_entries"] == 1 and report["stages"]["load"]["cached"] == 0
+    assert (tmp_path / "b" / "torus.glb").read_bytes() == (tmp_path / "a" / "torus.glb").read_bytes()
+
+
 def test_inspect_shows_thickness(baked_samples, capsys):
     _, out, _ = baked_samples
     assert main(["inspect", str(out / "sphere.glb")]) == 0
