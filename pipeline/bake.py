@@ -403,6 +403,8 @@ def bake_asset(
                 runner.skip("simplify", "no technique that needs reference points ran")
             runner.skip(t, "the plan chose it for no object (--techniques auto)" if auto
                         else f"not requested (--techniques {t})")
+    warnings.extend(f"stage cache: {rec.corrupt} damaged {rec.name} entr{'y' if rec.corrupt == 1 else 'ies'} "
+                    "(checksum mismatch) deleted and recomputed" for rec in runner.records.values() if rec.corrupt)
     baked_scene = replace(scene, meshes=tuple(meshes), images=tuple(images), textures=tuple(textures))
     extras = {
         "scaleMmPerUnit": mm_per_unit,
