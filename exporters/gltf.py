@@ -11,7 +11,9 @@ Layout of the file (documented for readers in ``exporters/schema/sssbake.schema.
   (with `BakedAsset.material_extras`' technique data, such as screen, arrays as table accessors),
   and are single-sided (see `TRANSLUCENT_EXTENSIONS`);
 - the root ``extras.sssbake`` holds the asset-level data; numpy arrays found in
-  ``BakedAsset.extras`` become accessors ("tables") referenced as ``{"accessor": index}``.
+  ``BakedAsset.extras`` become accessors ("tables") referenced as ``{"accessor": index}``;
+- a texture slot's ``KHR_texture_transform`` (read from the source) is written back as it was,
+  listed in ``extensionsUsed``; images are copied byte for byte.
 """
 
 from __future__ import annotations
@@ -496,11 +498,30 @@ def _indices(packer: _Packer, faces: np.ndarray, n: int, where: str) -> int:
                            ELEMENT_ARRAY_BUFFER)
 
 
+TEXTURE_TRANSFORM = "KHR_texture_transform"
+
+
+def _texture_extensions(ref: TextureRef) -> dict:
+    """A slot's KHR_texture_transform as read from the source, written back unchanged."""
+    return {TEXTURE_TRANSFORM: ref.transform.to_json()} if ref.transform is not None else {}
+
+
 def _texture_info(ref: TextureRef | None) -> g.TextureInfo | None:
-    return None if ref is None else g.TextureInfo(index=ref.texture, texCoord=ref.tex_coord)
+    if ref is None:
+        return None
+    return g.TextureInfo(index=ref.texture, texCoord=ref.tex_coord, extensions=_texture_extensions(ref))
 
 
 def _material(src: SourceMaterial, scattering: ScatteringMaterial | None) -> tuple[g.Material, list[str]]:
+    material, extensions = _material_json(src, scattering)
+    slots = (material.pbrMetallicRoughness.baseColorTexture, material.pbrMetallicRoughness.metallicRoughnessTexture,
+             material.normalTexture, material.occlusionTexture, material.emissiveTexture)
+    if any(slot is not None and TEXTURE_TRANSFORM in (slot.extensions or {}) for slot in slots):
+        extensions = extensions + [TEXTURE_TRANSFORM]
+    return material, extensions
+
+
+def _material_json(src: SourceMaterial, scattering: ScatteringMaterial | None) -> tuple[g.Material, list[str]]:
     pbr = g.PbrMetallicRoughness(
         baseColorFactor=[float(c) for c in src.base_color_factor],
         metallicFactor=float(src.metallic_factor),
@@ -512,9 +533,11 @@ def _material(src: SourceMaterial, scattering: ScatteringMaterial | None) -> tup
         name=src.name or None,
         pbrMetallicRoughness=pbr,
         normalTexture=None if src.normal_texture is None else g.NormalMaterialTexture(
-            index=src.normal_texture.texture, texCoord=src.normal_texture.tex_coord),
+            index=src.normal_texture.texture, texCoord=src.normal_texture.tex_coord,
+            extensions=_texture_extensions(src.normal_texture)),
         occlusionTexture=None if src.occlusion_texture is None else g.OcclusionTextureInfo(
-            index=src.occlusion_texture.texture, texCoord=src.occlusion_texture.tex_coord),
+            index=src.occlusion_texture.texture, texCoord=src.occlusion_texture.tex_coord,
+            extensions=_texture_extensions(src.occlusion_texture)),
         emissiveFactor=[float(c) for c in src.emissive_factor],
         emissiveTexture=_texture_info(src.emissive_texture),
         doubleSided=bool(src.double_sided),

@@ -42,7 +42,7 @@ from .thickness import bake_thickness
 from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
-STAGE_VERSIONS = {"load": 1, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
+STAGE_VERSIONS = {"load": 2, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
                   "spectral": 1, "screen": 1, "lpv": 2, "pilot": 3}
 
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
@@ -425,7 +425,7 @@ def bake_asset(
             with runner.timed("export_sss_normals"):
                 summaries["sss_normals_glb"] = write_glb(normals_variant(asset), outputs[3])
             written.append(outputs[3])
-        validation = _validate(runner, outputs, options, warnings)
+        validation = _validate(runner, outputs, options, warnings, path, len(scene.images))
         report = {
             "asset": str(path),
             "job_key": key,
@@ -466,7 +466,18 @@ def bake_asset(
     return BakeResult(report, outputs)
 
 
-def _validate(runner: StageRunner, outputs, options: BakeOptions, warnings: list[str]) -> dict:
+def _validate(runner: StageRunner, outputs, options: BakeOptions, warnings: list[str], source: Path | None = None,
+              copied_images: int = 0) -> dict:
+    """Validate the outputs; a glTF/GLB `source` is validated too, in the same node process.
+
+    An output message is ``"inherited": true`` when the source's report has its code, or when it is
+    about the data of one of the first `copied_images` images (the source's, copied byte for byte:
+    an OBJ's PNG is not validated as input). Per glTF output: ``errors``/``warnings`` count sssbake's
+    own, ``inherited_errors``/``inherited_warnings`` the inherited ones, ``input`` the source's counts.
+    """
+    # glTF-Validator's codes about an image's bytes (not about the JSON that describes it)
+    image_data_codes = {"IMAGE_DATA_INVALID", "IMAGE_FEATURES_UNSUPPORTED", "IMAGE_MIME_TYPE_INVALID",
+                        "IMAGE_UNEXPECTED_EOS", "IMAGE_UNRECOGNIZED_FORMAT"}
     if not options.validate:
         runner.skip("validate", "turned off (--no-validate)")
         return {}
@@ -475,12 +486,39 @@ def _validate(runner: StageRunner, outputs, options: BakeOptions, warnings: list
 
     out = {}
     with runner.timed("validate"):
-        # outputs[3], when written, is the normals variant; one validator run for both files
+        # outputs[3], when written, is the normals variant; one validator run for the input and both files
         glbs = {"gltf": outputs[0], **({"gltf_sss_normals": outputs[3]} if len(outputs) > 3 else {})}
+        gltf_source = source is not None and Path(source).suffix.lower() in (".gltf", ".glb")
         try:
-            for name, g in zip(glbs, validate_many(list(glbs.values()))):
-                out[name] = {"errors": g.num_errors, "warnings": g.num_warnings, "infos": g.num_infos,
-                             "messages": [m.to_json() for m in g.messages if m.severity in ("Error", "Warning")]}
+            try:
+                reports = validate_many(([source] if gltf_source else []) + list(glbs.values()))
+            except RuntimeError as e:  # the validator cannot read the input at all: the outputs alone
+                if not gltf_source:
+                    raise
+                warnings.append(f"the input was not validated: {str(e).splitlines()[0]}")
+                gltf_source, reports = False, validate_many(list(glbs.values()))
+            source_report = reports.pop(0) if gltf_source else None
+            source_codes = ({m.code for m in source_report.messages if m.severity in ("Error", "Warning")}
+                            if source_report is not None else set())
+
+            def inherited(m) -> bool:
+                parts = m.pointer.split("/")
+                copied = (m.code in image_data_codes and len(parts) == 3 and parts[1] == "images"
+                          and parts[2].isdigit() and int(parts[2]) < copied_images)
+                return m.code in source_codes or copied
+
+            for name, g in zip(glbs, reports):
+                shown = [m for m in g.messages if m.severity in ("Error", "Warning")]
+                flags = [inherited(m) for m in shown]
+                inherited_errors = sum(f for m, f in zip(shown, flags) if m.severity == "Error")
+                inherited_warnings = sum(f for m, f in zip(shown, flags) if m.severity == "Warning")
+                out[name] = {"errors": g.num_errors - inherited_errors, "warnings": g.num_warnings - inherited_warnings,
+                             "inherited_errors": inherited_errors, "inherited_warnings": inherited_warnings,
+                             "infos": g.num_infos,
+                             "messages": [{**m.to_json(), "inherited": f} for m, f in zip(shown, flags)]}
+                if source_report is not None:
+                    out[name]["input"] = {"errors": source_report.num_errors, "warnings": source_report.num_warnings,
+                                          "infos": source_report.num_infos}
         except ValidatorUnavailable as e:
             warnings.append(f"glTF validation skipped: {e}")
         u = validate_usd(outputs[1])

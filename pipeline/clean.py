@@ -226,12 +226,12 @@ def clean_scene(scene: Scene) -> CleanScene:
             normal_texture = scene.materials[p.material].normal_texture if p.material is not None else None
             if normal_texture is None or p.tangents is not None:
                 continue
-            if normal_texture.tex_coord < len(p.uvs):
+            if normal_texture.uv_set < len(p.uvs):
                 prims[pi] = replace(p, tangents=vertex_tangents(p.positions, p.faces, p.normals,
-                                                                p.uvs[normal_texture.tex_coord]))
+                                                                p.uvs[normal_texture.uv_set]))
             else:
                 warnings.append(f"mesh {mesh.name!r} primitive {pi}: the normal texture uses "
-                                f"TEXCOORD_{normal_texture.tex_coord}, which the primitive lacks; no tangents")
+                                f"TEXCOORD_{normal_texture.uv_set}, which the primitive lacks; no tangents")
         kept[mi] = len(meshes)
         meshes.append(Mesh(mesh.name, tuple(prims), mesh.deforming))
         surfaces.append(surf)

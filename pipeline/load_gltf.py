@@ -3,6 +3,12 @@
 The GLB container, buffers and accessors are decoded here rather than by pygltflib so that every
 inconsistency (short chunk, buffer shorter than a view needs, index out of range) becomes an
 `AssetError` that says which one.
+
+Extensions: KHR_draco_mesh_compression is decoded with DracoPy (an uncompressed fallback, when the
+extension is only used, is read as it is); EXT_mesh_gpu_instancing becomes one child node per
+instance; KHR_texture_transform is kept on the `TextureRef`; EXT_meshopt_compression is read
+through its uncompressed fallback. A file that requires any extension not in `SUPPORTED_REQUIRED`
+is refused, naming it (and, for compression, the command that removes it).
 """
 
 from __future__ import annotations
@@ -11,7 +17,7 @@ import base64
 import binascii
 import json
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from urllib.parse import unquote, unquote_to_bytes
 
@@ -19,15 +25,28 @@ import numpy as np
 import pygltflib
 
 from .load import AssetError
-from .scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef
+from .scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef, TextureTransform
 
 COMPONENT_DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 MODE_NAMES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP", 4: "TRIANGLES", 5: "TRIANGLE_STRIP", 6: "TRIANGLE_FAN"}
 GLB_JSON_CHUNK = 0x4E4F534A
 GLB_BIN_CHUNK = 0x004E4942
-# Geometry behind these cannot be decoded here; better to refuse than to load empty meshes.
-UNSUPPORTED_REQUIRED = ("KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_meshopt_compression")
+DRACO = "KHR_draco_mesh_compression"
+INSTANCING = "EXT_mesh_gpu_instancing"
+TEXTURE_TRANSFORM = "KHR_texture_transform"
+#: Required extensions this reader implements: Draco (decoded with DracoPy), texture transforms (kept),
+#: GPU instancing (one node per instance), quantized attributes (any component type is read) and the
+#: material extensions it reads. A file requiring any other is refused: it cannot be read right without.
+SUPPORTED_REQUIRED = frozenset({DRACO, TEXTURE_TRANSFORM, INSTANCING, "KHR_mesh_quantization", "KHR_materials_ior",
+                                "KHR_materials_volume", "KHR_materials_diffuse_transmission"})
+#: How to turn a file that requires an unsupported compression into one sssbake reads.
+DECOMPRESS = {
+    "EXT_meshopt_compression": "gltfpack -i in.glb -o out.glb -noq",
+    "KHR_meshopt_compression": "gltfpack -i in.glb -o out.glb -noq",
+    DRACO: "gltf-transform copy in.glb out.glb",
+}
+CORE_IMAGE_TYPES = ("image/png", "image/jpeg")
 IMAGE_SIGNATURES = ((b"\x89PNG", "image/png"), (b"\xff\xd8", "image/jpeg"), (b"RIFF", "image/webp"), (b"\xabKTX", "image/ktx2"))
 
 
@@ -59,7 +78,8 @@ def load_gltf(path: str) -> Scene:
     ------
     AssetError
         Bad GLB header or chunk, invalid JSON, missing or short buffers, indices out of range,
-        accessors of the wrong type, no triangles.
+        accessors of the wrong type, no triangles, a required extension sssbake does not support,
+        Draco data that does not decode, a texture whose only image needs an extension.
     """
     data = Path(path).read_bytes()
     if Path(path).suffix.lower() == ".glb" or data[:4] == b"glTF":
@@ -67,10 +87,11 @@ def load_gltf(path: str) -> Scene:
     else:
         text, blob = _decode_text(path, data), None
     gltf = _parse_json(path, text)
+    # Before the buffers: a file requiring meshopt has placeholder buffers with no data.
+    for extension in gltf.extensionsRequired or ():
+        if extension not in SUPPORTED_REQUIRED:
+            raise AssetError(path, _unsupported(extension))
     doc = _Document(path, gltf, _load_buffers(path, gltf, blob))
-    required = [e for e in gltf.extensionsRequired or () if e in UNSUPPORTED_REQUIRED]
-    if required:
-        raise AssetError(path, f"requires extension {required[0]}, which sssbake cannot decode")
     meshes, skipped = [], []
     skinned = {node.mesh for node in gltf.nodes if node.mesh is not None and node.skin is not None}
     for i, mesh in enumerate(gltf.meshes):
@@ -88,17 +109,24 @@ def load_gltf(path: str) -> Scene:
             raise AssetError(path, f"no triangles: only {', '.join(sorted(set(skipped)))} primitives ({len(skipped)} skipped)")
         raise AssetError(path, "no triangles: the file has no mesh geometry")
     nodes = _nodes(doc)
+    textures, images = _textures_and_images(doc)
     return Scene(
         source=path,
         meshes=tuple(meshes),
         nodes=nodes,
         roots=_roots(doc, nodes),
         materials=tuple(_material(doc, m, i) for i, m in enumerate(gltf.materials)),
-        textures=tuple(_texture(doc, t, i) for i, t in enumerate(gltf.textures)),
-        images=tuple(_image(doc, im, i) for i, im in enumerate(gltf.images)),
+        textures=textures,
+        images=images,
         up_axis="Y",
         meters_per_unit=1.0,
     )
+
+
+def _unsupported(extension: str, detail: str = "") -> str:
+    """The one-line refusal of a required `extension`, with the command that removes it when there is one."""
+    fix = DECOMPRESS.get(extension)
+    return f"{extension} is required and not supported{detail}" + (f"; decompress it first ({fix})" if fix else "")
 
 
 def _split_glb(path: str, data: bytes) -> tuple[str, bytes | None]:
@@ -248,9 +276,22 @@ def _floats(values: np.ndarray, normalized: bool) -> np.ndarray:
     return np.maximum(out, -1.0) if values.dtype.kind == "i" else out
 
 
-def _attribute(doc: _Document, index, name: str, types: tuple[str, ...], count: int | None, where: str) -> np.ndarray:
-    """float64 (count, k) vertex attribute, checked for type and (unless `count` is None) length."""
-    values, acc = _accessor(doc, index, f"{where} {name}")
+def _attribute(doc: _Document, index, name: str, types: tuple[str, ...], count: int | None, where: str,
+               decoded: np.ndarray | None = None) -> np.ndarray:
+    """float64 (count, k) vertex attribute, checked for type and (unless `count` is None) length.
+
+    `decoded`: the attribute's values as a KHR_draco_mesh_compression stream decodes them (the accessor
+    then gives only the type, the count and ``normalized``)."""
+    if decoded is None:
+        values, acc = _accessor(doc, index, f"{where} {name}")
+    else:
+        acc = _item(doc, doc.gltf.accessors, index, "accessor")
+        values = decoded
+        if values.dtype.kind != "f" and acc.componentType in COMPONENT_DTYPES:
+            values = values.astype(COMPONENT_DTYPES[acc.componentType])  # normalized: the accessor's type's range
+        if values.shape[1] != TYPE_SIZES.get(acc.type) or len(values) != acc.count:
+            raise AssetError(doc.path, f"{where}: {DRACO} decodes {name} as {len(values)} x {values.shape[1]} values, "
+                                       f"accessor {index} says {acc.count} x {acc.type}")
     if acc.type not in types:
         raise AssetError(doc.path, f"{where}: {name} accessor {index} has type {acc.type}, expected {' or '.join(types)}")
     if count is not None and len(values) != count:
@@ -267,19 +308,26 @@ def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primiti
     attrs = {k: v for k, v in raw.items() if v is not None}
     if "POSITION" not in attrs:
         raise AssetError(doc.path, f"{where} has no POSITION attribute")
-    positions = _attribute(doc, attrs["POSITION"], "POSITION", ("VEC3",), None, where)
+    draco = _draco(doc, prim, attrs, where)
+
+    def read(name: str, types: tuple[str, ...], count: int | None) -> np.ndarray:
+        return _attribute(doc, attrs[name], name, types, count, where, draco.get(name))
+
+    positions = read("POSITION", ("VEC3",), None)
     n = len(positions)
-    normals = _attribute(doc, attrs["NORMAL"], "NORMAL", ("VEC3",), n, where) if "NORMAL" in attrs else None
-    tangents = _attribute(doc, attrs["TANGENT"], "TANGENT", ("VEC4",), n, where) if "TANGENT" in attrs else None
+    normals = read("NORMAL", ("VEC3",), n) if "NORMAL" in attrs else None
+    tangents = read("TANGENT", ("VEC4",), n) if "TANGENT" in attrs else None
     uvs = []
     while f"TEXCOORD_{len(uvs)}" in attrs:
-        uvs.append(_attribute(doc, attrs[f"TEXCOORD_{len(uvs)}"], f"TEXCOORD_{len(uvs)}", ("VEC2",), n, where))
+        uvs.append(read(f"TEXCOORD_{len(uvs)}", ("VEC2",), n))
     colors = None
     if "COLOR_0" in attrs:
-        colors = _attribute(doc, attrs["COLOR_0"], "COLOR_0", ("VEC3", "VEC4"), n, where)
+        colors = read("COLOR_0", ("VEC3", "VEC4"), n)
         if colors.shape[1] == 3:
             colors = np.column_stack([colors, np.ones(n)])
-    if prim.indices is None:
+    if "indices" in draco:
+        index = draco["indices"]
+    elif prim.indices is None:
         index = np.arange(n, dtype=np.int64)
     else:
         values, acc = _accessor(doc, prim.indices, f"{where} indices")
@@ -299,6 +347,39 @@ def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primiti
         material=prim.material,
         tangents=tangents,
     )
+
+
+def _draco(doc: _Document, prim: pygltflib.Primitive, attrs: dict, where: str) -> dict[str, np.ndarray]:
+    """A KHR_draco_mesh_compression primitive's attributes (by glTF name) and ``indices``, decoded.
+
+    Empty when the primitive is not compressed, or when the extension is only used and the accessors
+    hold the uncompressed fallback (read as they are: exact, where Draco quantizes)."""
+    ext = (prim.extensions or {}).get(DRACO)
+    if not isinstance(ext, dict):
+        return {}
+    position = _item(doc, doc.gltf.accessors, attrs["POSITION"], "accessor")
+    if DRACO not in (doc.gltf.extensionsRequired or ()) and (position.bufferView is not None or position.sparse):
+        return {}
+    try:
+        import DracoPy
+    except ImportError:
+        raise AssetError(doc.path, _unsupported(DRACO, " (the Python package DracoPy is not installed)")) from None
+    data = bytes(_view(doc, ext.get("bufferView"))[0])
+    try:
+        mesh = DracoPy.decode(data)
+    except Exception as e:  # DracoPy raises its own types (and ValueError) on a corrupt stream
+        raise AssetError(doc.path, f"{where}: {DRACO} data cannot be decoded ({type(e).__name__}: {e})") from None
+    if not isinstance(mesh, DracoPy.DracoMesh):
+        raise AssetError(doc.path, f"{where}: {DRACO} data is a point cloud, not a triangle mesh")
+    out = {"indices": np.asarray(mesh.faces, np.int64).reshape(-1)}
+    for name, unique_id in (ext.get("attributes") or {}).items():
+        attribute = mesh.get_attribute_by_unique_id(unique_id)
+        if attribute is None or name not in attrs:
+            raise AssetError(doc.path, f"{where}: {DRACO} maps {name} to Draco attribute {unique_id!r}, which "
+                                       f"{'the stream lacks' if attribute is None else 'the primitive does not list'}")
+        values = np.asarray(attribute["data"])
+        out[name] = values.reshape(len(values), -1)
+    return out
 
 
 def _faces(doc: _Document, index: np.ndarray, mode: int, where: str) -> np.ndarray:
@@ -350,6 +431,7 @@ def _nodes(doc: _Document) -> tuple[Node, ...]:
     """All nodes; refuses a graph where a node has two parents (it would not be a tree)."""
     gltf = doc.gltf
     nodes = []
+    instances: list[Node] = []  # EXT_mesh_gpu_instancing: one child node per instance, after the file's nodes
     parents = np.zeros(len(gltf.nodes), np.int64)
     for i, node in enumerate(gltf.nodes):
         if node.mesh is not None:
@@ -358,10 +440,42 @@ def _nodes(doc: _Document) -> tuple[Node, ...]:
         for c in children:
             _item(doc, gltf.nodes, c, "node")
         np.add.at(parents, list(children), 1)
-        nodes.append(Node(node.name or f"node_{i}", _node_matrix(doc, node, i), node.mesh, children))
+        name, mesh = node.name or f"node_{i}", node.mesh
+        instancing = (node.extensions or {}).get(INSTANCING)
+        if isinstance(instancing, dict) and mesh is not None:
+            # The node draws its mesh once per instance transform (applied before the node's own), never alone.
+            first = len(gltf.nodes) + len(instances)
+            matrices = _instance_matrices(doc, instancing, i)
+            instances += [Node(f"{name}_instance_{k}", m, mesh) for k, m in enumerate(matrices)]
+            children += tuple(range(first, len(gltf.nodes) + len(instances)))
+            mesh = None
+        nodes.append(Node(name, _node_matrix(doc, node, i), mesh, children))
     if len(parents) and parents.max() > 1:
         raise AssetError(doc.path, f"node {int(parents.argmax())} is the child of more than one node")
-    return tuple(nodes)
+    return tuple(nodes + instances)
+
+
+def _instance_matrices(doc: _Document, ext: dict, i: int) -> list[np.ndarray]:
+    """(4, 4) transform of each EXT_mesh_gpu_instancing instance of node `i` (TRANSLATION, ROTATION, SCALE)."""
+    attrs = ext.get("attributes") or {}
+    where = f"node {i} {INSTANCING}"
+    read = {name: _attribute(doc, attrs[name], name, (kind,), None, where)
+            for name, kind in (("TRANSLATION", "VEC3"), ("ROTATION", "VEC4"), ("SCALE", "VEC3")) if name in attrs}
+    counts = {len(v) for v in read.values()}
+    if len(counts) != 1:
+        raise AssetError(doc.path, f"{where}: " + ("no instance attributes" if not counts else
+                                                  f"attributes of different counts {sorted(counts)}"))
+    out = []
+    for k in range(counts.pop()):
+        m = np.eye(4)
+        q = read["ROTATION"][k] if "ROTATION" in read else np.array([0.0, 0.0, 0.0, 1.0])
+        m[:3, :3] = _quaternion_matrix(q) * (read["SCALE"][k] if "SCALE" in read else 1.0)
+        if "TRANSLATION" in read:
+            m[:3, 3] = read["TRANSLATION"][k]
+        if not np.isfinite(m).all():
+            raise AssetError(doc.path, f"{where}: instance {k} has a non-finite transform")
+        out.append(m)
+    return out
 
 
 def _roots(doc: _Document, nodes: tuple[Node, ...]) -> tuple[int, ...]:
@@ -384,7 +498,25 @@ def _texture_ref(doc: _Document, info, slot: str) -> TextureRef | None:
     if info is None or info.index is None:
         return None
     _item(doc, doc.gltf.textures, info.index, f"{slot} texture")
-    return TextureRef(info.index, info.texCoord or 0)
+    return TextureRef(info.index, info.texCoord or 0, _texture_transform(doc, info, slot))
+
+
+def _texture_transform(doc: _Document, info, slot: str) -> TextureTransform | None:
+    """A texture slot's KHR_texture_transform (kept as authored, for the exporter to write back)."""
+    ext = (info.extensions or {}).get(TEXTURE_TRANSFORM)
+    if ext is None:
+        return None
+    try:
+        offset = tuple(float(x) for x in ext.get("offset", (0.0, 0.0)))
+        scale = tuple(float(x) for x in ext.get("scale", (1.0, 1.0)))
+        rotation = float(ext.get("rotation", 0.0))
+        tex_coord = ext.get("texCoord")
+        if len(offset) != 2 or len(scale) != 2 or not np.isfinite(offset + scale + (rotation,)).all() or not (
+                tex_coord is None or (isinstance(tex_coord, int) and tex_coord >= 0)):
+            raise ValueError
+    except (AttributeError, TypeError, ValueError):
+        raise AssetError(doc.path, f"{slot} texture: malformed {TEXTURE_TRANSFORM} {ext!r}") from None
+    return TextureTransform(offset, rotation, scale, tex_coord)
 
 
 def _material(doc: _Document, m: pygltflib.Material, i: int) -> SourceMaterial:
@@ -416,12 +548,27 @@ def _material(doc: _Document, m: pygltflib.Material, i: int) -> SourceMaterial:
     )
 
 
+def _textures_and_images(doc: _Document) -> tuple[tuple[Texture, ...], tuple[Image, ...]]:
+    """Textures and images; an image only an extension names (EXT_texture_webp, KHR_texture_basisu beside a
+    PNG/JPEG source) is left out: no glTF can hold it without that extension."""
+    textures = [_texture(doc, t, i) for i, t in enumerate(doc.gltf.textures)]
+    images = [_image(doc, im, i) for i, im in enumerate(doc.gltf.images)]
+    used = {t.image for t in textures}
+    keep = [i for i, im in enumerate(images) if i in used or im.mime_type in CORE_IMAGE_TYPES]
+    remap = {old: new for new, old in enumerate(keep)}
+    return tuple(replace(t, image=remap[t.image]) for t in textures), tuple(images[i] for i in keep)
+
+
 def _texture(doc: _Document, t: pygltflib.Texture, i: int) -> Texture:
-    """Image and sampler state of a texture; the image may come from an extension (webp, basisu)."""
+    """Image and sampler state of a texture: its core (PNG/JPEG) source; a texture with only an extension's
+    image (EXT_texture_webp, KHR_texture_basisu) is refused."""
     source = t.source
     if source is None:
-        source = next((e["source"] for e in (t.extensions or {}).values() if isinstance(e, dict) and "source" in e), None)
-    if source is None:
+        # Only an extension's image (WebP, KTX2): sssbake cannot write it back (the file would need the extension).
+        ext = next((k for k, e in (t.extensions or {}).items() if isinstance(e, dict) and "source" in e), None)
+        if ext is not None:
+            raise AssetError(doc.path, f"texture {i}: its only image is an {ext} one (no PNG/JPEG fallback), "
+                                       "and sssbake does not support that extension")
         raise AssetError(doc.path, f"texture {i} has no image")
     _item(doc, doc.gltf.images, source, "image")
     if t.sampler is None:
@@ -439,7 +586,8 @@ def _image(doc: _Document, im: pygltflib.Image, i: int) -> Image:
         data, uri_mime = _uri_bytes(doc.path, im.uri, f"image {i}")
     else:
         raise AssetError(doc.path, f"image {i} has neither a uri nor a bufferView")
-    mime = im.mimeType or uri_mime or next((m for sig, m in IMAGE_SIGNATURES if data.startswith(sig)), None)
+    # The bytes' signature beats a declared type: exporters mislabel JPEGs as PNG, and the copy must not.
+    mime = next((m for sig, m in IMAGE_SIGNATURES if data.startswith(sig)), None) or im.mimeType or uri_mime
     if mime is None:
         raise AssetError(doc.path, f"image {i}: unknown image format")
     name = im.name or (Path(unquote(im.uri)).stem if im.uri and not im.uri.startswith("data:") else f"image_{i}")

@@ -40,11 +40,51 @@ class Texture:
 
 
 @dataclass(frozen=True)
+class TextureTransform:
+    """A texture slot's glTF KHR_texture_transform: uv' = translate(offset) rotate(rotation) scale(scale) uv.
+
+    Attributes
+    ----------
+    offset, scale : (float, float)
+    rotation : float
+        Radians, counter-clockwise in UV space.
+    tex_coord : int or None
+        The TEXCOORD set the transform reads instead of the slot's own (None: the slot's).
+    """
+
+    offset: tuple[float, float] = (0.0, 0.0)
+    rotation: float = 0.0
+    scale: tuple[float, float] = (1.0, 1.0)
+    tex_coord: int | None = None
+
+    def to_json(self) -> dict:
+        """The extension object, defaults left out."""
+        out: dict = {}
+        if self.offset != (0.0, 0.0):
+            out["offset"] = list(self.offset)
+        if self.rotation != 0.0:
+            out["rotation"] = self.rotation
+        if self.scale != (1.0, 1.0):
+            out["scale"] = list(self.scale)
+        if self.tex_coord is not None:
+            out["texCoord"] = self.tex_coord
+        return out
+
+
+@dataclass(frozen=True)
 class TextureRef:
-    """A material slot's texture: which texture and which TEXCOORD set."""
+    """A material slot's texture: which texture, which TEXCOORD set and its KHR_texture_transform, if any."""
 
     texture: int
     tex_coord: int = 0
+    transform: TextureTransform | None = None
+
+    @property
+    def uv_set(self) -> int:
+        """The TEXCOORD set the texture is sampled with (the transform's override, else `tex_coord`)."""
+        if self.transform is not None and self.transform.tex_coord is not None:
+            return self.transform.tex_coord
+        return self.tex_coord
 
 
 @dataclass(frozen=True)

@@ -74,3 +74,17 @@ def test_missing_node_says_how_to_install(monkeypatch):
     monkeypatch.setattr(gltf_validator.shutil, "which", lambda name: None)
     with pytest.raises(ValidatorUnavailable, match="npm install gltf-validator"):
         validate_glb(b"glTF")
+
+
+def test_a_warning_message_has_to_json():
+    """Regression: a Warning on an export (an input PNG's colour-space chunks, as in Khronos' BoxTextured.glb)
+    reached the report through `ValidationMessage.to_json`, which did not exist."""
+    import json
+
+    from gltf_corpus import _textured_box, gradient, png
+
+    (report,) = validate_many([_textured_box(png(gradient(), colour_chunks=True), "image/png").glb()])
+    (message,) = [m for m in report.messages if m.severity == "Warning"]
+    assert message.to_json() == {"code": "IMAGE_FEATURES_UNSUPPORTED", "severity": "Warning", "pointer": "/images/0",
+                                 "message": message.message}
+    assert json.loads(json.dumps(report.to_json()))["messages"][0]["code"] == "IMAGE_FEATURES_UNSUPPORTED"

@@ -268,7 +268,18 @@ def _one_mesh(tmp_path, name: str, **edits) -> Path:
      "material index 0 out of range"),
     ({"meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}]}, "4 indices is not a multiple of 3"),
     ({"meshes": [{"primitives": [{"attributes": {"NORMAL": 0}, "indices": 1}]}]}, "no POSITION"),
-    ({"extensionsRequired": ["KHR_draco_mesh_compression"]}, "KHR_draco_mesh_compression"),
+    ({"extensionsRequired": ["EXT_meshopt_compression"]},
+     "EXT_meshopt_compression is required and not supported; decompress it first (gltfpack -i in.glb -o out.glb -noq)"),
+    ({"extensionsRequired": ["KHR_texture_basisu"]}, "KHR_texture_basisu is required and not supported"),
+    ({"textures": [{"extensions": {"KHR_texture_basisu": {"source": 0}}}],
+      "images": [{"uri": "data:image/ktx2;base64,q0tUWCAyMLsNChoK"}]},
+     "texture 0: its only image is an KHR_texture_basisu one (no PNG/JPEG fallback)"),
+    ({"materials": [{"pbrMetallicRoughness": {"baseColorTexture": {
+        "index": 0, "extensions": {"KHR_texture_transform": {"offset": [1.0]}}}}}],
+      "textures": [{"source": 0}], "images": [{"uri": "data:image/png;base64,iVBORw0KGgo="}]},
+     "baseColor texture: malformed KHR_texture_transform"),
+    ({"nodes": [{"mesh": 0, "extensions": {"EXT_mesh_gpu_instancing": {"attributes": {}}}}]},
+     "node 0 EXT_mesh_gpu_instancing: no instance attributes"),
     ({"nodes": 5}, "invalid glTF structure"),
 ])
 def test_structural_errors(tmp_path, edits, needle):
@@ -314,3 +325,27 @@ def test_skinned_and_morphed_meshes_are_marked_deforming(tmp_path):
     node.skin = 0
     gltf.save(str(tmp_path / "deforming.glb"))
     assert [m.deforming for m in load_scene(str(tmp_path / "deforming.glb")).meshes] == [True, True]
+
+
+def test_required_mesh_quantization_is_read(tmp_path):
+    """KHR_mesh_quantization (required, as gltfpack writes it): integer positions are their integer
+    values (the node's scale dequantizes them), normalized byte normals map to [-1, 1]."""
+    positions = (TRI * 1000).astype(np.int16)
+    padded = np.zeros((4, 4), np.int16)
+    padded[:, :3] = positions
+    normals = np.zeros((4, 4), np.int8)
+    normals[:, 2] = 127
+    gltf, blob = _raw_gltf([(padded, "SCALAR", {}), (normals.view(np.uint8), "SCALAR", {}),
+                            (TRI_FACES.ravel(), "SCALAR", {})])
+    gltf["bufferViews"][0]["byteStride"] = 8
+    gltf["bufferViews"][1]["byteStride"] = 4
+    gltf["accessors"][0].update(componentType=5122, type="VEC3", count=4)
+    gltf["accessors"][1].update(componentType=5120, normalized=True, type="VEC3", count=4)
+    gltf["meshes"] = [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2}]}]
+    gltf["nodes"] = [{"mesh": 0, "scale": [0.001, 0.001, 0.001]}]
+    gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["KHR_mesh_quantization"]
+    scene = load_scene(_write(tmp_path / "q.gltf", gltf, blob))
+    prim = scene.meshes[0].primitives[0]
+    np.testing.assert_array_equal(prim.positions, positions)
+    np.testing.assert_array_equal(prim.normals, np.tile([0.0, 0.0, 1.0], (4, 1)))
+    np.testing.assert_allclose(scene.world_matrices()[0][:3, :3], 0.001 * np.eye(3))
