@@ -72,7 +72,7 @@ LPV_REFERENCE_MAX_RESOLUTION = 256
 
 def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT, size: int = 512,
                 out_dir: str | os.PathLike | None = None, frames: int = 20, light_pos=None,
-                reference_sum: str = "exact", lpv_steps: int = LPV_DEFAULTS.steps) -> dict:
+                reference_sum: str = "exact", lpv_steps: int = LPV_DEFAULTS.steps, stock_viewer: bool = False) -> dict:
     """Render `path` (.glb) with `technique`'s runtime and with the offline reference.
 
     Parameters
@@ -88,6 +88,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         `reference.reference_scattering`).
     lpv_steps : int
         lpv: propagation steps per frame.
+    stock_viewer : bool
+        Also render what a stock glTF viewer shows (`stock_figures`).
     size : int
         Image width and height in pixels.
     out_dir : path, optional
@@ -110,7 +112,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         ``missed_share_low_share``, ``bytes_per_material``; lpv reports where light leaks
         (`lpv_leaks`): ``excess_share``, ``excess_share_unlit``, ``thin_cells``, ``lpv_steps``,
         ``bytes_per_mesh``, and with a self-convergence reference ``reference_resolution`` and
-        ``reference_steps`` (its finest grid and its steps).
+        ``reference_steps`` (its finest grid and its steps). With `stock_viewer` also
+        `stock_figures`' keys and ``pngs["stock"]``.
     """
     from .image_metrics import (best_fit_scale, rmse, shared_exposure, write_comparison_png,
                                 write_difference_png)
@@ -265,6 +268,10 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     pngs = {"comparison": str(out_dir / f"{stem}.png"), "difference": str(out_dir / f"{stem}.diff.png")}
     write_comparison_png(pngs["comparison"], shown, exposure)
     write_difference_png(pngs["difference"], image, reference, exposure)
+    if stock_viewer:
+        pngs["stock"] = str(out_dir / f"{stem}.stock.png")
+        extra.update(stock_figures(path, [it["positions"] for it in sss_items], camera, light, size, reference,
+                                   ref_mask, exposure, pngs["stock"]))
 
     report = _bake_report(path)
     technique_reports = list(report.get(technique, {}).values())
@@ -301,6 +308,53 @@ def reference_label(reference_sum: str, dipoles: int, self_references: int) -> s
     if not self_references:
         return reference_sum
     return LPV_SELF_REFERENCE if not dipoles else f"{reference_sum} (homogeneous meshes); {LPV_SELF_REFERENCE}"
+
+
+def stock_figures(path: Path, positions: list[np.ndarray], camera, light, size: int, reference: np.ndarray,
+                  mask: np.ndarray, exposure: float, png: str) -> dict:
+    """What a stock glTF viewer shows (pyrender: `stock_viewer.render_stock_viewer`) of `path`'s
+    fallback material and of the spectral normals variant ``<stem>.sss_normals.glb`` when the bake
+    wrote one, against verify's reference, unscaled: a viewer shows the base colour as it is.
+
+    Parameters
+    ----------
+    positions : list of (n, 3) float
+        The vertex positions of the primitives verify compares (the stock pictures draw those alone).
+    camera, light : Camera, RenderLight
+        verify's.
+    reference : (H, W, 3) float32
+    mask : (H, W) bool
+        The reference's coverage.
+    exposure : float
+        verify's shared exposure.
+    png : str
+        Where reference | stock | stock variant (without one: reference | stock) go.
+
+    Returns
+    -------
+    dict
+        ``rmse_object_stock`` (over the reference's or the stock image's pixels), ``stock_scale``
+        (3,) (the per-channel best fit of the stock image to the reference, not applied: how far
+        the viewer's brightness is off), ``stock_variant`` (the variant's path, None without one),
+        ``rmse_object_stock_variant`` (None without one), ``stock_seconds`` (the renders, with
+        pyrender's import on a process's first call).
+    """
+    from .image_metrics import best_fit_scale, rmse, write_comparison_png
+    from .stock_viewer import render_stock_viewer
+
+    t = time.perf_counter()
+    stock, covered = render_stock_viewer(path, camera, light, size, exposure, positions)
+    variant = path.with_suffix(".sss_normals.glb")
+    shown, figures = [reference, stock], {"stock_variant": None, "rmse_object_stock_variant": None}
+    if variant.is_file():
+        normals, normals_covered = render_stock_viewer(variant, camera, light, size, exposure, positions)
+        shown.append(normals)
+        figures = {"stock_variant": str(variant),
+                   "rmse_object_stock_variant": rmse(normals, reference, exposure, mask | normals_covered)}
+    seconds = time.perf_counter() - t
+    write_comparison_png(png, shown, exposure)
+    return {"rmse_object_stock": rmse(stock, reference, exposure, mask | covered),
+            "stock_scale": best_fit_scale(stock, reference, mask).tolist(), **figures, "stock_seconds": seconds}
 
 
 def lpv_reference(surface: Surface, source: LpvSource, grid: LpvGrid, steps: int
