@@ -45,12 +45,17 @@ def _bake(args) -> int:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
     cache = None if args.no_cache else (args.cache_dir or str(out / ".sssbake-cache"))
+    if args.dask is not None and args.jobs != 1:
+        print("error: give --jobs or --dask, not both (--dask local:N runs N local worker processes)", file=sys.stderr)
+        return 2
+    from .batch_dask import ClusterError  # distributed itself is imported only with --dask
+
     try:
         summary = run_batch(
             [Path(p) for p in args.paths], out, config, overrides, jobs=args.jobs, cache_dir=cache,
-            progress=not args.quiet,
+            progress=not args.quiet, dask=args.dask,
         )
-    except (FileNotFoundError, ConfigError) as e:
+    except (OSError, ConfigError, ClusterError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     for r in summary["assets"]:
@@ -126,7 +131,7 @@ def _verify(args) -> int:
         light = DEFAULT_LIGHT if args.light_dir is None else _vector(args.light_dir, "--light-dir")
         position = None if args.light_pos is None else _vector(args.light_pos, "--light-pos")
         result = verify_file(args.file, args.technique, light, args.size, args.out, args.frames, position,
-                             args.reference, args.lpv_steps)
+                             args.reference, args.lpv_steps, args.stock_viewer)
     except (OSError, ValueError, PrtReadError) as e:
         print(f"error: {args.file}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
         return 1
@@ -141,6 +146,14 @@ def _verify(args) -> int:
               f"frame {result['frame_ms_sss']:.2f} ms vs plain {result['frame_ms_plain']:.2f} ms; "
               f"images in {result['pngs']['comparison']} (reference | {result['technique']} | Lambert"
               f"{' | naive' if 'rmse_object_naive' in result else ''})")
+        if args.stock_viewer:
+            variant = (f"spectral normals variant {result['rmse_object_stock_variant']:.4g}"
+                       if result["stock_variant"] is not None else
+                       f"no {Path(args.file).with_suffix('.sss_normals.glb').name} (bake with --techniques spectral "
+                       "--spectral-variant)")
+            print(f"stock viewer (pyrender, unscaled): RMSE object fallback {result['rmse_object_stock']:.4g} "
+                  f"(best-fit scale to the reference {np.round(result['stock_scale'], 3).tolist()}), {variant}; "
+                  f"{result['stock_seconds']:.2f} s; images in {result['pngs']['stock']}")
     return 0
 
 
@@ -273,8 +286,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--config", help="TOML batch config (defaults, per-file rules, material rules)")
     b.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
     b.add_argument("--atlas-resolution", type=int, help=f"atlas texels per side (default {BAKE_DEFAULTS.atlas_resolution})")
-    b.add_argument("--techniques", help="comma-separated techniques to bake besides the fallback: prt, kernels, "
-                                       "spectral, screen, lpv")
+    b.add_argument("--techniques",
+                   help="comma-separated techniques to bake besides the fallback: prt, kernels, spectral, screen, "
+                        "lpv; auto: the planner chooses per mesh and material, with a reason in the report; none: "
+                        f"the fallback only (default {','.join(BAKE_DEFAULTS.techniques) or 'none'})")
     b.add_argument("--prt-directions", type=int, help=f"prt: light directions K (default {BAKE_DEFAULTS.prt_directions})")
     b.add_argument("--prt-energy-dropped", type=float,
                    help=f"prt: fraction of R_d the gather radius may drop (default {BAKE_DEFAULTS.prt_energy_dropped})")
@@ -350,6 +365,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write OUT/report.html: each technique verified against the reference, with pictures")
     _budget_arguments(b)
     b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
+    b.add_argument("--dask", metavar="SCHEDULER",
+                   help="bake each asset as a task on a Dask cluster: its scheduler's address (tcp://host:8786; "
+                        "inputs, OUT and the cache folder must be shared with the workers), or local:N for N "
+                        "worker processes here")
     b.add_argument("--cache-dir", help="stage cache folder (default OUT/.sssbake-cache)")
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")
     b.add_argument("--no-validate", action="store_true", help="skip the glTF and USD validators")
@@ -373,6 +392,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--size", type=int, default=512, help="image width and height (default 512)")
     v.add_argument("--out", help="folder for the PNGs (default: next to the file)")
     v.add_argument("--frames", type=int, default=20, help="frames timed per shader (default 20)")
+    v.add_argument("--stock-viewer", action="store_true",
+                   help="also render the fallback material, and STEM.sss_normals.glb if the bake wrote it, as a stock "
+                        "glTF viewer does (pyrender), and give their RMSE against the same reference")
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=_verify)
 

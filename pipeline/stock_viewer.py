@@ -135,10 +135,16 @@ def _render(pyrender, scene, size: int, flags) -> np.ndarray:
             del renderer
             gc.collect()
     finally:
+        from OpenGL.error import GLError
+
         display = platform._egl_display
+        restored = False
         if previous[3]:
-            EGL.eglMakeCurrent(*previous)
-        else:
+            try:
+                restored = bool(EGL.eglMakeCurrent(*previous))
+            except GLError:
+                pass  # the caller's context was released while current: EGL deleted it once unbound
+        if not restored:
             EGL.eglMakeCurrent(display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
         EGL.eglDestroyContext(display, platform._egl_context)
     return np.asarray(rgba)

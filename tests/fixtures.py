@@ -92,3 +92,14 @@ def bake_screen_sphere(folder: Path, **overrides):
     options = BakeOptions(**{"material": "marble", "scale_mm": 1.0, "atlas_resolution": 64, "techniques": ("screen",),
                              "validate": False, **overrides})
     return bake_asset(folder / "ball.obj", options, folder / "ball", StageCache(None)), options
+
+
+# A batch config's defaults that keep a bake cheap: the fallback only (techniques is given, since
+# its default is the planner's), small atlases.
+FAST_DEFAULTS = """\
+[defaults]
+material = "marble"
+scale_mm = 1.0
+techniques = []
+atlas_resolution = 64
+"""

@@ -125,7 +125,8 @@ def test_bad_inputs_fail_alone_and_leave_nothing(tmp_path, capsys):
         assert "\n" not in rec["error"]
         assert rec["error"] in err
     leftovers = sorted(p.name for p in out.rglob("*") if p.is_file() and ".sssbake-cache" not in p.parts)
-    assert leftovers == ["batch.json", "good.glb", "good.report.json", "good.usdc"]
+    # the batch lock (`batch._batch_lock`) stays: it is how a later batch knows whether it runs alone
+    assert leftovers == [".sssbake.lock", "batch.json", "good.glb", "good.report.json", "good.usdc"]
 
 
 def test_missing_scale_is_refused_not_guessed(tmp_path, capsys):

@@ -241,7 +241,6 @@ def test_instanced_meshes_bake_once_and_keep_every_instance(corpus):
 
 
 def test_draco_is_decoded_and_a_fallback_is_read_as_it_is(corpus, monkeypatch):
-    pytest.importorskip("DracoPy")
     folder, files, _ = corpus
     box = box24()
     for name in ("draco_required.glb", "draco_fallback.glb"):
