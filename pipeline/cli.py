@@ -275,6 +275,16 @@ def _presets(_args) -> int:
     return 0
 
 
+def _whole_number_at_least_1(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sssbake", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -364,7 +374,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--report", action="store_true",
                    help="also write OUT/report.html: each technique verified against the reference, with pictures")
     _budget_arguments(b)
-    b.add_argument("--jobs", type=int, default=1, help="assets baked in parallel (default 1)")
+    b.add_argument("--jobs", type=_whole_number_at_least_1, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--dask", metavar="SCHEDULER",
                    help="bake each asset as a task on a Dask cluster: its scheduler's address (tcp://host:8786; "
                         "inputs, OUT and the cache folder must be shared with the workers), or local:N for N "

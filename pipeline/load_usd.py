@@ -24,6 +24,7 @@ What is read, at the earliest authored time (the default value when nothing is a
 
 from __future__ import annotations
 
+import math
 import os
 import re
 
@@ -102,6 +103,10 @@ class _Reader:
         if not any(len(p.faces) for m in self.meshes for p in m.primitives):
             vertices = sum(len(p.positions) for m in self.meshes for p in m.primitives)
             raise AssetError(self.path, f"no triangles ({vertices} vertices, 0 faces) {where}")
+        meters = UsdGeom.GetStageMetersPerUnit(self.stage) if UsdGeom.StageHasAuthoredMetersPerUnit(self.stage) else None
+        if meters is not None and not (math.isfinite(meters) and meters > 0):
+            raise AssetError(self.path, f"metersPerUnit is {meters!r}; it must be a finite number > 0 "
+                                        "(fix the layer's metadata, or pass --scale-mm)")
         return Scene(
             source=self.path,
             meshes=tuple(self.meshes),
@@ -109,10 +114,7 @@ class _Reader:
             roots=roots,
             materials=tuple(self.materials),
             up_axis="Z" if UsdGeom.GetStageUpAxis(self.stage) == UsdGeom.Tokens.z else "Y",
-            meters_per_unit=(
-                float(UsdGeom.GetStageMetersPerUnit(self.stage))
-                if UsdGeom.StageHasAuthoredMetersPerUnit(self.stage) else None
-            ),
+            meters_per_unit=float(meters) if meters is not None else None,
         )
 
     def node(self, prim: Usd.Prim, top: bool) -> int | None:

@@ -189,8 +189,27 @@ def parse_techniques(value: str | list | tuple) -> tuple[str, ...]:
     return names
 
 
+def check_types(o: BakeOptions) -> None:
+    """Raise ValueError naming the first option whose value is not of its declared kind.
+
+    TOML and JSON carry ``true`` and ``512.5`` where a number or a whole number is meant; Python
+    takes a bool for an int, so without this ``scale_mm = true`` would bake at 1 mm per unit.
+    """
+    for f in fields(o):
+        value, kind = getattr(o, f.name), f.type.removesuffix(" | None")
+        if value is None and f.type.endswith(" | None"):
+            continue
+        if kind == "int" and (isinstance(value, bool) or not isinstance(value, int)):
+            raise ValueError(f"{f.name} must be a whole number, got {value!r}")
+        if kind == "float" and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise ValueError(f"{f.name} must be a number, got {value!r}")
+        if kind in ("bool", "str") and not isinstance(value, {"bool": bool, "str": str}[kind]):
+            raise ValueError(f"{f.name} must be {'true or false' if kind == 'bool' else 'a string'}, got {value!r}")
+
+
 def check_options(o: BakeOptions) -> None:
     """Raise ValueError with a one-line reason for an impossible setting."""
+    check_types(o)
     if o.scale_mm is not None and not (isinstance(o.scale_mm, (int, float)) and 0 < o.scale_mm < float("inf")):
         raise ValueError(f"scale_mm must be a finite number > 0, got {o.scale_mm!r}")
     if not (16 <= o.atlas_resolution <= 8192):
@@ -242,8 +261,6 @@ def check_options(o: BakeOptions) -> None:
     if not (isinstance(o.lpv_max_steps, int) and 1 <= o.lpv_max_steps <= MAX_STEPS):
         raise ValueError(f"lpv_max_steps must be a whole number in [1, {MAX_STEPS}], got {o.lpv_max_steps!r}")
     for name in ("spectral_variant", "spectral_basis"):
-        if not isinstance(getattr(o, name), bool):
-            raise ValueError(f"{name} must be true or false, got {getattr(o, name)!r}")
         if getattr(o, name) and "spectral" not in o.techniques:
             raise ValueError(f"{name} needs the spectral technique (--techniques spectral)")
     if o.prt_mode == "sh" and o.prt_sh_order < 1:

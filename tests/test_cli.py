@@ -312,3 +312,12 @@ def test_bad_screen_options_are_one_line(tmp_path, capsys, flags, needle):
     err = capsys.readouterr().err.strip().splitlines()
     assert any("sphere.obj" in line and needle in line for line in err), err
     assert not list((tmp_path / "o").glob("sphere.*"))
+
+
+@pytest.mark.parametrize("jobs", ["-1", "0", "1.5", "two"])
+def test_jobs_must_be_a_whole_number_at_least_one(tmp_path, capsys, jobs):
+    with pytest.raises(SystemExit) as e:
+        main(["bake", str(tmp_path), "-o", str(tmp_path / "out"), "--jobs", jobs])
+    assert e.value.code == 2
+    assert f"argument --jobs: must be a whole number >= 1, got '{jobs}'" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

@@ -46,6 +46,12 @@ def test_precedence(tmp_path):
         ("[[assets]]\nmaterial = 'skin1'\n", "glob"),
         ("[[assets]]\nglob = '*'\natlas_resolution = 3\n", "atlas_resolution"),
         ("[defaults\n", "invalid TOML"),
+        # TOML's own kinds where the option means another: Python would take true for 1 and 512.5 as a size
+        ("[defaults]\nscale_mm = true\n", "scale_mm must be a number, got True"),
+        ("[defaults]\natlas_resolution = 512.5\n", "atlas_resolution must be a whole number, got 512.5"),
+        ("[defaults]\nvalidate = 1\n", "validate must be true or false, got 1"),
+        ("[defaults]\nprt_mode = 3\n", "prt_mode must be a string, got 3"),
+        ("[[assets]]\nglob = '*'\nprt_directions = 200.0\n", "prt_directions must be a whole number"),
     ],
 )
 def test_bad_configs_fail_early_with_one_line(tmp_path, text, needle):

@@ -281,3 +281,12 @@ def Xform "C" (
     # B ignores its parents' transforms, also inside the instance of A under C.
     for worlds in scene.mesh_instances().values():
         np.testing.assert_array_equal(worlds[0][:3, 3], [0, 5, 0])
+
+
+@pytest.mark.parametrize("meters", ["0", "-0.01", "nan", "inf"])
+def test_meters_per_unit_must_be_a_finite_positive_number(tmp_path, meters):
+    good = QUADS.replace("metersPerUnit = 0.001", "metersPerUnit = 0.01")
+    assert load_scene(write(tmp_path, "good.usda", good)).meters_per_unit == 0.01
+    bad = QUADS.replace("metersPerUnit = 0.001", f"metersPerUnit = {meters}")
+    message = one_line_error(write(tmp_path, "bad.usda", bad), "metersPerUnit is ")
+    assert "finite number > 0" in message
