@@ -35,7 +35,7 @@ from ..pipeline.baked import (
     VertexAttribute,
     check_material_references,
 )
-from ..pipeline.scene import SourceMaterial, TextureRef
+from ..pipeline.scene import TEXTURE_TRANSFORM, SourceMaterial, TextureRef
 from .atomic import atomic_path
 from .finite import check_finite, finite_number
 
@@ -496,9 +496,6 @@ def _indices(packer: _Packer, faces: np.ndarray, n: int, where: str) -> int:
                                ELEMENT_ARRAY_BUFFER)
     return packer.accessor(faces.reshape(-1).astype(np.uint32), UNSIGNED_INT, False, "index", "indices",
                            ELEMENT_ARRAY_BUFFER)
-
-
-TEXTURE_TRANSFORM = "KHR_texture_transform"
 
 
 def _texture_extensions(ref: TextureRef) -> dict:

@@ -13,7 +13,6 @@ import contextlib
 import json
 import multiprocessing
 import os
-import re
 import time
 import traceback
 from collections.abc import Iterator
@@ -25,7 +24,7 @@ from tqdm import tqdm
 from ..exporters.atomic import atomic_path, temporary_target
 from .bake import bake_asset
 from .plan_check import bake_within_budget
-from .cache import StageCache
+from .cache import StageCache, temporaries as cache_temporaries
 from .config import BatchConfig, ConfigError
 from .load import SUPPORTED_EXTENSIONS, AssetError
 from .materials import MaterialError
@@ -234,9 +233,6 @@ LOCK_NAME = ".sssbake.lock"
 # A temporary untouched this long belongs to no live write, whoever else is running: every writer
 # writes its temporary in one go and renames it at once.
 STALE_AFTER_S = 3600.0
-# `cache.StageCache.put`: mkstemp(dir=<cache>/<key[:2]>, suffix=".tmp"), mkstemp's default prefix "tmp".
-_CACHE_TEMPORARY = re.compile(r"tmp[a-z0-9_]{8}\.tmp")
-_CACHE_SHARD = re.compile(r"[0-9a-f]{2}")
 
 
 @contextlib.contextmanager
@@ -283,8 +279,8 @@ def sweep_temporaries(out_dir: Path, cache_dir: str | None, before: float) -> in
     """Remove sssbake's temporary files under `out_dir` and `cache_dir` last modified before `before`.
 
     Only our exact names go: `atomic_path`'s (`atomic.temporary_target`, anywhere under `out_dir`)
-    and the stage cache's (``<cache>/<2 hex digits>/tmpXXXXXXXX.tmp``). Symlinked folders are not
-    followed. A file that vanishes meanwhile (its writer renamed it) or cannot be removed is skipped.
+    and the stage cache's (`cache.temporaries`). Symlinked folders are not followed. A file that
+    vanishes meanwhile (its writer renamed it) or cannot be removed is skipped.
 
     Parameters
     ----------
@@ -316,9 +312,6 @@ def sweep_temporaries(out_dir: Path, cache_dir: str | None, before: float) -> in
             if temporary_target(name) is not None:
                 drop(Path(folder) / name)
     if cache_dir is not None:
-        for folder, _dirs, files in os.walk(cache_dir):
-            if _CACHE_SHARD.fullmatch(Path(folder).name) and Path(folder).parent == Path(cache_dir):
-                for name in files:
-                    if _CACHE_TEMPORARY.fullmatch(name):
-                        drop(Path(folder) / name)
+        for path in cache_temporaries(cache_dir):
+            drop(path)
     return removed

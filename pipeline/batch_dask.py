@@ -235,7 +235,8 @@ def _environment() -> dict[str, str]:
 
 
 def _source_digest() -> str:
-    """SHA-256 over sssbake's Python and shader files (an editable install's version never changes)."""
+    """SHA-256 over the pipeline's and exporters' .py, .json and .mjs files (an editable install's
+    version never changes)."""
     from .. import exporters, pipeline
 
     h = hashlib.sha256()

@@ -14,7 +14,9 @@ import hashlib
 import json
 import os
 import pickle
+import re
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 
@@ -35,6 +37,23 @@ def stage_key(upstream: str, stage: str, version: int, params: dict) -> str:
 
 #: Entry header: format tag, then the payload's SHA-256 (32 bytes), then the pickled payload.
 MAGIC = b"sssbake-cache-1\n"
+# `put`'s temporaries, ``<folder>/<key[:2]>/tmp<8 of mkstemp's characters>.tmp`` (`temporaries` finds them).
+_TEMPORARY = re.compile(r"tmp[a-z0-9_]{8}\.tmp")
+_SHARD = re.compile(r"[0-9a-f]{2}")
+
+
+def temporaries(folder: str | os.PathLike) -> Iterator[Path]:
+    """The temporary files `StageCache.put` writes under `folder` (a killed run leaves them behind).
+
+    Only the exact names ``put`` makes, in the two-hex-digit folders directly under `folder`;
+    symlinked folders are not followed.
+    """
+    root = Path(folder)
+    if not root.is_dir():
+        return
+    for shard in root.iterdir():
+        if _SHARD.fullmatch(shard.name) and shard.is_dir() and not shard.is_symlink():
+            yield from (p for p in shard.iterdir() if _TEMPORARY.fullmatch(p.name))
 
 
 class StageCache:
@@ -83,7 +102,7 @@ class StageCache:
             return
         path = self._path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="tmp", suffix=".tmp")  # the shape `temporaries` finds
         try:
             payload = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
             with os.fdopen(fd, "wb") as f:

@@ -25,7 +25,8 @@ import numpy as np
 import pygltflib
 
 from .load import AssetError
-from .scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef, TextureTransform
+from .scene import (TEXTURE_TRANSFORM, Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef,
+                    TextureTransform)
 
 COMPONENT_DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
@@ -34,7 +35,6 @@ GLB_JSON_CHUNK = 0x4E4F534A
 GLB_BIN_CHUNK = 0x004E4942
 DRACO = "KHR_draco_mesh_compression"
 INSTANCING = "EXT_mesh_gpu_instancing"
-TEXTURE_TRANSFORM = "KHR_texture_transform"
 #: Required extensions this reader implements: Draco (decoded with DracoPy), texture transforms (kept),
 #: GPU instancing (one node per instance), quantized attributes (any component type is read) and the
 #: material extensions it reads. A file requiring any other is refused: it cannot be read right without.

@@ -210,7 +210,7 @@ def check_types(o: BakeOptions) -> None:
 def check_options(o: BakeOptions) -> None:
     """Raise ValueError with a one-line reason for an impossible setting."""
     check_types(o)
-    if o.scale_mm is not None and not (isinstance(o.scale_mm, (int, float)) and 0 < o.scale_mm < float("inf")):
+    if o.scale_mm is not None and not (0 < o.scale_mm < float("inf")):
         raise ValueError(f"scale_mm must be a finite number > 0, got {o.scale_mm!r}")
     if not (16 <= o.atlas_resolution <= 8192):
         raise ValueError(f"atlas_resolution must be in [16, 8192], got {o.atlas_resolution}")
@@ -234,11 +234,11 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"prt_tables must be one of {list(TABLES)}, got {o.prt_tables!r}")
     if o.prt_weight_bits not in WEIGHT_BITS:
         raise ValueError(f"prt_weight_bits must be one of {list(WEIGHT_BITS)}, got {o.prt_weight_bits!r}")
-    if o.prt_byte_budget is not None and not (isinstance(o.prt_byte_budget, (int, float)) and o.prt_byte_budget > 0):
+    if o.prt_byte_budget is not None and not o.prt_byte_budget > 0:
         raise ValueError(f"prt_byte_budget must be a positive number of bytes per vertex, got {o.prt_byte_budget!r}")
-    if not (isinstance(o.prt_reference_floor, int) and o.prt_reference_floor >= 0):
+    if not o.prt_reference_floor >= 0:
         raise ValueError(f"prt_reference_floor must be a whole number >= 0, got {o.prt_reference_floor!r}")
-    if not (isinstance(o.prt_detail_order, int) and 0 <= o.prt_detail_order <= MAX_ORDER):
+    if not (0 <= o.prt_detail_order <= MAX_ORDER):
         raise ValueError(f"prt_detail_order must be a whole number in [0, {MAX_ORDER}], got {o.prt_detail_order!r}")
     if not (0.0 <= o.prt_refine < 1.0):
         raise ValueError(f"prt_refine must be in [0, 1), got {o.prt_refine}")
@@ -253,12 +253,11 @@ def check_options(o: BakeOptions) -> None:
     o.lpv_marble().check()
     if o.lpv_field not in LPV_FIELDS:
         raise ValueError(f"lpv_field must be one of {list(LPV_FIELDS)}, got {o.lpv_field!r}")
-    if o.max_bytes_per_vertex is not None and not (isinstance(o.max_bytes_per_vertex, (int, float))
-                                                   and o.max_bytes_per_vertex > 0):
+    if o.max_bytes_per_vertex is not None and not o.max_bytes_per_vertex > 0:
         raise ValueError(f"max_bytes_per_vertex must be a positive number, got {o.max_bytes_per_vertex!r}")
-    if o.budget_rmse is not None and not (isinstance(o.budget_rmse, (int, float)) and 0 < o.budget_rmse < 1):
+    if o.budget_rmse is not None and not (0 < o.budget_rmse < 1):
         raise ValueError(f"budget_rmse must be an image RMSE in (0, 1), got {o.budget_rmse!r}")
-    if not (isinstance(o.lpv_max_steps, int) and 1 <= o.lpv_max_steps <= MAX_STEPS):
+    if not (1 <= o.lpv_max_steps <= MAX_STEPS):
         raise ValueError(f"lpv_max_steps must be a whole number in [1, {MAX_STEPS}], got {o.lpv_max_steps!r}")
     for name in ("spectral_variant", "spectral_basis"):
         if getattr(o, name) and "spectral" not in o.techniques:

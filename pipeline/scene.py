@@ -39,6 +39,10 @@ class Texture:
     wrap_t: int = 10497
 
 
+#: The glTF extension a `TextureTransform` is read from and written back as.
+TEXTURE_TRANSFORM = "KHR_texture_transform"
+
+
 @dataclass(frozen=True)
 class TextureTransform:
     """A texture slot's glTF KHR_texture_transform: uv' = translate(offset) rotate(rotation) scale(scale) uv.
