@@ -186,7 +186,9 @@ def bake_asset(
 
     runner = StageRunner(cache, trace_memory)
     warnings: list[str] = []
-    scene, k_load = runner.run("load", STAGE_VERSIONS["load"], digest, {}, load_scene, str(path))
+    # The allowed roots are in the key: a scene read under a wider allowance must not serve a narrower one.
+    scene, k_load = runner.run("load", STAGE_VERSIONS["load"], digest, {"allow_roots": list(options.allow_roots)},
+                               load_scene, str(path), options.allow_roots)
     clean, k_clean = runner.run("clean", STAGE_VERSIONS["clean"], k_load, {}, clean_scene, scene)
     clean: CleanScene
     warnings.extend(clean.warnings)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -40,7 +41,7 @@ def _bake(args) -> int:
                  "kernels_global_vertices", "spectral_eigenpairs", "spectral_width_mm", "spectral_alpha",
                  "spectral_radius_mm", "spectral_variant", "spectral_basis", "screen_samples", "screen_uniform",
                  "screen_table_error", "lpv_resolution", "lpv_padding", "lpv_supersample", "lpv_field",
-                 "lpv_vein_mm", "lpv_max_steps", "max_bytes_per_vertex", "budget_rmse"):
+                 "lpv_vein_mm", "lpv_max_steps", "max_bytes_per_vertex", "budget_rmse", "allow_roots"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -92,7 +93,8 @@ def _plan(args) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     overrides = {k: v for k, v in (("material", args.material), ("scale_mm", args.scale_mm),
-                                   ("budget_rmse", args.budget_rmse), ("max_bytes_per_vertex", args.max_bytes_per_vertex))
+                                   ("budget_rmse", args.budget_rmse), ("max_bytes_per_vertex", args.max_bytes_per_vertex),
+                                   ("allow_roots", args.allow_roots))
                  if v is not None}
     entries, failed = [], 0
     for job in jobs:
@@ -374,6 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--report", action="store_true",
                    help="also write OUT/report.html: each technique verified against the reference, with pictures")
     _budget_arguments(b)
+    _allow_root_argument(b)
     b.add_argument("--jobs", type=_whole_number_at_least_1, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--dask", metavar="SCHEDULER",
                    help="bake each asset as a task on a Dask cluster: its scheduler's address (tcp://host:8786; "
@@ -450,6 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--json", action="store_true", help="print a JSON list: asset, mesh, material, techniques, "
                                                         "params, reasons, measures (and pilot)")
     _budget_arguments(pl)
+    _allow_root_argument(pl)
     pl.set_defaults(func=_plan)
 
     p = sub.add_parser("presets", help="list the measured material presets (Jensen et al. 2001)")
@@ -463,6 +467,18 @@ def _budget_arguments(parser) -> None:
                              "checks it, and with --techniques auto a pilot on a subsample chooses the parameters")
     parser.add_argument("--max-bytes-per-vertex", type=float,
                         help="with --techniques auto: the most bytes per vertex the planner may spend")
+
+
+def _allow_root_argument(parser) -> None:
+    parser.add_argument("--allow-root", dest="allow_roots", metavar="FOLDER", action="append", type=_folder,
+                        help="a folder besides each asset's own that the files it references (glTF buffers and "
+                             "images, USD layers and textures, OBJ materials) may lie in; repeat for more")
+
+
+def _folder(text: str) -> str:
+    if not os.path.isdir(text):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a folder")
+    return os.path.abspath(text)
 
 
 def main(argv: list[str] | None = None) -> int:

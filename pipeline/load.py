@@ -37,12 +37,15 @@ class AssetError(Exception):
         return (type(self), (self.path, self.problem))
 
 
-def load_scene(path: str | os.PathLike) -> Scene:
+def load_scene(path: str | os.PathLike, allow_roots: tuple[str, ...] = ()) -> Scene:
     """Read an OBJ, PLY, STL, glTF/GLB or USD file.
 
     Parameters
     ----------
     path : str or os.PathLike
+    allow_roots : tuple of str
+        Folders besides the asset's own that the files it references may lie in
+        (`confine.Confinement`); a reference outside them all is refused.
 
     Returns
     -------
@@ -53,8 +56,8 @@ def load_scene(path: str | os.PathLike) -> Scene:
     ------
     AssetError
         For every problem with the file (missing, unsupported type, truncated, corrupt, no
-        triangles, non-finite positions, face indices out of range); no other exception escapes
-        for a bad file.
+        triangles, non-finite positions, face indices out of range, a reference outside the
+        allowed folders); no other exception escapes for a bad file.
     """
     path = os.fspath(path)
     ext = Path(path).suffix.lower()
@@ -80,8 +83,10 @@ def load_scene(path: str | os.PathLike) -> Scene:
         from .load_usd import load_usd as reader
     else:
         from .load_trimesh import load_trimesh as reader
+    from .confine import Confinement
+
     try:
-        scene = reader(path)
+        scene = reader(path, Confinement.for_asset(path, allow_roots))
     except AssetError:
         raise
     except OSError as e:

@@ -24,6 +24,7 @@ from urllib.parse import unquote, unquote_to_bytes
 import numpy as np
 import pygltflib
 
+from .confine import Confinement
 from .load import AssetError
 from .scene import (TEXTURE_TRANSFORM, Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef,
                     TextureTransform)
@@ -59,13 +60,15 @@ class _Document:
     buffers: tuple[bytes, ...]
 
 
-def load_gltf(path: str) -> Scene:
+def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
     """Read a .gltf or .glb file.
 
     Parameters
     ----------
     path : str
         External buffers and images are resolved relative to its folder.
+    confinement : Confinement or None
+        Where external files may lie (default: the asset's folder only).
 
     Returns
     -------

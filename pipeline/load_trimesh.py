@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from .confine import Confinement
 from .load import AssetError
 from .scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef
 
@@ -26,7 +27,7 @@ PLY_TYPE_SIZES = {
 PLY_FACE_LISTS = ("vertex_indices", "vertex_index")
 
 
-def load_trimesh(path: str) -> Scene:
+def load_trimesh(path: str, confinement: Confinement | None = None) -> Scene:
     """Read an OBJ, PLY or STL file.
 
     One `Mesh` (one primitive) per trimesh geometry, one node per geometry instance. The
@@ -35,6 +36,8 @@ def load_trimesh(path: str) -> Scene:
     Parameters
     ----------
     path : str
+    confinement : Confinement or None
+        Where an OBJ's material libraries and textures may lie (default: the asset's folder only).
 
     Returns
     -------

@@ -31,6 +31,7 @@ import re
 import numpy as np
 from pxr import Gf, Tf, Usd, UsdGeom, UsdShade, UsdSkel
 
+from .confine import Confinement
 from .load import AssetError
 from .scene import Mesh, Node, Primitive, Scene, SourceMaterial
 
@@ -45,13 +46,15 @@ _PREVIEW_DEFAULTS = {
 _SKIPPED_PURPOSES = (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)
 
 
-def load_usd(path: str | os.PathLike) -> Scene:
+def load_usd(path: str | os.PathLike, confinement: Confinement | None = None) -> Scene:
     """Read the meshes, node hierarchy and materials of a USD stage.
 
     Parameters
     ----------
     path : str or os.PathLike
         A .usd, .usda or .usdc file.
+    confinement : Confinement or None
+        Where the layers and assets it references may lie (default: the asset's folder only).
 
     Returns
     -------

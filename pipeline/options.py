@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import asdict, dataclass, fields, replace
 
 from .kernels_layout import KERNEL_BITS
@@ -85,6 +86,9 @@ class BakeOptions:
     max_bytes_per_vertex : float or None
         ``--techniques auto``: the most bytes per vertex the planner may spend (a prt it chooses
         gets it as its ``prt_byte_budget``).
+    allow_roots : tuple of str
+        Folders besides each asset's own that the files it references (glTF buffers and images,
+        USD layers and textures, OBJ material libraries) may lie in (`confine.Confinement`).
     budget_rmse : float or None
         The image RMSE (`verify.verify_file`'s ``rmse_image``) each baked technique should stay
         under: the bake checks it on the full asset (`plan_check`), and with ``--techniques auto``
@@ -135,6 +139,7 @@ class BakeOptions:
     lpv_max_steps: int = LPV_MAX_STEPS
     max_bytes_per_vertex: float | None = None
     budget_rmse: float | None = None
+    allow_roots: tuple[str, ...] = ()
 
     def prt_compress(self) -> PrtCompressOptions:
         return PrtCompressOptions(self.prt_mode, self.prt_reference_fraction, self.prt_sh_order, self.prt_weights,
@@ -170,6 +175,8 @@ class BakeOptions:
             raise ValueError(f"unknown option(s) {unknown}; known: {sorted(known)}")
         if isinstance(overrides.get("techniques"), (list, tuple, str)):
             overrides = {**overrides, "techniques": parse_techniques(overrides["techniques"])}
+        if isinstance(overrides.get("allow_roots"), list):  # TOML arrays
+            overrides = {**overrides, "allow_roots": tuple(overrides["allow_roots"])}
         return replace(self, **overrides)
 
 
@@ -259,6 +266,11 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"budget_rmse must be an image RMSE in (0, 1), got {o.budget_rmse!r}")
     if not (1 <= o.lpv_max_steps <= MAX_STEPS):
         raise ValueError(f"lpv_max_steps must be a whole number in [1, {MAX_STEPS}], got {o.lpv_max_steps!r}")
+    if not (isinstance(o.allow_roots, tuple) and all(isinstance(r, str) and r for r in o.allow_roots)):
+        raise ValueError(f"allow_roots must be a list of folder paths, got {o.allow_roots!r}")
+    missing = [r for r in o.allow_roots if not os.path.isdir(r)]
+    if missing:
+        raise ValueError(f"allow_roots: {missing[0]!r} is not a folder")
     for name in ("spectral_variant", "spectral_basis"):
         if getattr(o, name) and "spectral" not in o.techniques:
             raise ValueError(f"{name} needs the spectral technique (--techniques spectral)")

@@ -103,7 +103,7 @@ def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
         As the bake would: unreadable files, no scale, bad materials.
     """
     path = Path(path)
-    clean = clean_scene(load_scene(str(path)))
+    clean = clean_scene(load_scene(str(path), options.allow_roots))
     mm_per_unit, _ = resolve_scale_mm(clean.scene, options)
     assignment = assign_materials(clean.scene, options, mm_per_unit)
     instances = assignment.scene.mesh_instances()
