@@ -42,7 +42,7 @@ from .thickness import bake_thickness
 from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
-STAGE_VERSIONS = {"load": 2, "clean": 2, "atlas": 2, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
+STAGE_VERSIONS = {"load": 3, "clean": 2, "atlas": 3, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
                   "spectral": 1, "screen": 1, "lpv": 2, "pilot": 3}
 
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
@@ -191,6 +191,7 @@ def bake_asset(
                                load_scene, str(path), options.allow_roots)
     clean, k_clean = runner.run("clean", STAGE_VERSIONS["clean"], k_load, {}, clean_scene, scene)
     clean: CleanScene
+    warnings.extend(scene.warnings)
     warnings.extend(clean.warnings)
     mm_per_unit, scale_source = resolve_scale_mm(clean.scene, options)
     assignment = assign_materials(clean.scene, options, mm_per_unit)
@@ -406,7 +407,7 @@ def bake_asset(
             runner.skip(t, "the plan chose it for no object (--techniques auto)" if auto
                         else f"not requested (--techniques {t})")
     warnings.extend(f"stage cache: {rec.corrupt} damaged {rec.name} entr{'y' if rec.corrupt == 1 else 'ies'} "
-                    "(checksum mismatch) deleted and recomputed" for rec in runner.records.values() if rec.corrupt)
+                    "(checksum mismatch or refused contents) deleted and recomputed" for rec in runner.records.values() if rec.corrupt)
     baked_scene = replace(scene, meshes=tuple(meshes), images=tuple(images), textures=tuple(textures))
     extras = {
         "scaleMmPerUnit": mm_per_unit,

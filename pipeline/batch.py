@@ -1,5 +1,6 @@
-"""Batch driver: finds assets under the given paths, bakes each (in parallel with --jobs, or on a
-Dask cluster with --dask: `batch_dask`), keeps going past bad assets, and writes ``OUT/batch.json``.
+"""Batch driver: finds assets under the given paths, bakes each in its own supervised worker process
+under a time and a memory limit (`asset_process`; --jobs at once, or on a Dask cluster with --dask:
+`batch_dask`), keeps going past bad assets, and writes ``OUT/batch.json``.
 
 A batch killed outright (SIGKILL, power loss) leaves finished assets, which the next batch skips
 (`bake.job_key` in their report), and temporary files, which the next batch removes
@@ -8,10 +9,9 @@ A batch killed outright (SIGKILL, power loss) leaves finished assets, which the 
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import contextlib
+import errno
 import json
-import multiprocessing
 import os
 import time
 import traceback
@@ -22,12 +22,49 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ..exporters.atomic import atomic_path, temporary_target
-from .bake import bake_asset
-from .plan_check import bake_within_budget
+from .asset_process import Limits, Task, supervise
 from .cache import StageCache, temporaries as cache_temporaries
 from .config import BatchConfig, ConfigError
 from .load import SUPPORTED_EXTENSIONS, AssetError
 from .materials import MaterialError
+from .options import BAKE_DEFAULTS
+
+
+class OutputError(OSError):
+    """The output folder cannot be used or written (a file in the way, read-only, disk full).
+
+    Attributes
+    ----------
+    summary : dict or None
+        The batch summary when the assets ran and only ``batch.json`` could not be written.
+    """
+
+    def __init__(self, message: str, summary: dict | None = None):
+        super().__init__(message)
+        self.summary = summary
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
+# errno values that mean "no room left" (EFBIG: over the file size limit, RLIMIT_FSIZE or the filesystem's)
+_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def os_error_line(path: Path, e: OSError) -> str:
+    """One line for `e` met while working on `path`: the file and the problem, and for a full disk or
+    a folder we may not write the fix; a temporary's name is given as the file it was written for."""
+    if e.errno is None:
+        return f"{path}: {e}"
+    name = e.filename if isinstance(e.filename, str) else None
+    if name is not None and (final := temporary_target(Path(name).name)) is not None:
+        name = str(Path(name).with_name(final))
+    what = f"{name}: {e.strerror}" if name is not None and name != str(path) else e.strerror
+    if e.errno in _FULL:
+        return f"{path}: {what}; free some space or give -o a folder on another disk"
+    if e.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return f"{path}: {what}; give -o a folder you may write"
+    return f"{path}: {what}"
 
 
 @dataclass(frozen=True)
@@ -82,6 +119,9 @@ def _walk(root: Path):
 
 def run_job(job: Job, config: BatchConfig, overrides: dict, cache_dir: str | None) -> dict:
     """Bake one asset; never raises: failures come back as one-line errors in the record."""
+    from .bake import bake_asset  # here: a parent that only supervises never needs them
+    from .plan_check import bake_within_budget
+
     t0 = time.perf_counter()
     record = {"asset": str(job.path), "outputs": []}
     try:
@@ -102,7 +142,9 @@ def run_job(job: Job, config: BatchConfig, overrides: dict, cache_dir: str | Non
             record["status"] = "up-to-date" if result.up_to_date else "ok"
     except AssetError as e:
         record.update(status="failed", error=str(e))
-    except (MaterialError, ConfigError, ValueError, OSError) as e:
+    except OSError as e:
+        record.update(status="failed", error=os_error_line(job.path, e))
+    except (MaterialError, ConfigError, ValueError) as e:
         message = str(e).splitlines()[0] if str(e) else type(e).__name__
         record.update(status="failed", error=message if str(job.path) in message else f"{job.path}: {message}")
     except Exception as e:  # a bug must not stop the batch; the traceback's last frame goes in the record
@@ -118,7 +160,7 @@ def run_job(job: Job, config: BatchConfig, overrides: dict, cache_dir: str | Non
 
 def run_batch(
     paths: list[Path], out_dir: Path, config: BatchConfig, overrides: dict, *, jobs: int = 1,
-    cache_dir: str | None = None, progress: bool = True, dask: str | None = None,
+    cache_dir: str | None = None, progress: bool = True, dask: str | None = None, isolate: bool = True,
 ) -> dict:
     """Bake every asset under `paths` into `out_dir`; returns (and writes) the batch summary.
 
@@ -133,7 +175,8 @@ def run_batch(
     overrides : dict
         Options from the command line (`BakeOptions` fields).
     jobs : int
-        Assets baked at once in a local process pool (1: in this process).
+        Assets baked at once, each in its own worker process under its `BakeOptions.asset_timeout_s`
+        and `asset_memory_gib` (`asset_process.supervise`).
     cache_dir : str or None
         Stage cache folder; None turns caching off.
     progress : bool
@@ -141,15 +184,33 @@ def run_batch(
     dask : str or None
         Bake on a Dask cluster instead: a scheduler address or ``local:N`` (`batch_dask.run_on_dask`);
         `jobs` is then unused.
+    isolate : bool
+        False: bake in this process, one asset at a time, with no limits (`jobs` unused); for
+        callers that patch the pipeline in-process (tests) or debug it.
 
     Returns
     -------
     dict
         ``assets`` (one record per asset, in `find_assets` order), ``ok``, ``failed``, ``seconds``
         and ``temporaries_removed`` (stale temporary files of an interrupted batch swept first).
+
+    Raises
+    ------
+    OutputError
+        `out_dir` is a file, cannot be written, or ``batch.json`` could not be written (then with
+        the summary).
+    FileNotFoundError
+        A path in `paths` does not exist.
     """
     t0 = time.perf_counter()
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OutputError(f"{out_dir}: is a file, not a folder; give -o a folder") from None
+    except NotADirectoryError:
+        raise OutputError(f"{out_dir}: a file is in the way of this folder; give -o a folder") from None
+    except OSError as e:
+        raise OutputError(os_error_line(out_dir, e)) from None
     todo = find_assets(paths, out_dir)
     with _batch_lock(out_dir, cache_dir) as (removed, start):
         bar = tqdm(total=len(todo), unit="asset", disable=not progress, leave=False)
@@ -157,25 +218,20 @@ def run_batch(
             from .batch_dask import run_on_dask
 
             records = run_on_dask(todo, config, overrides, cache_dir, dask, on_done=bar.update, since=start)
-        elif jobs <= 1:
+        elif not isolate:
             records = []
             for job in todo:
                 bar.set_description(job.rel)
                 records.append(run_job(job, config, overrides, cache_dir))
                 bar.update()
         else:
-            records = []
-            ctx = multiprocessing.get_context("spawn")
-            with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_pool_worker_init,
-                                        initargs=(ctx.Value("i", 0), jobs)) as pool:
-                # Largest input first: with a few long assets, starting them last would leave workers idle.
-                futures = {pool.submit(run_job, j, config, overrides, cache_dir): j
-                           for j in sorted(todo, key=lambda j: -input_bytes(j.path))}
-                for fut in cf.as_completed(futures):
-                    records.append(fut.result())
-                    bar.update()
-            order = {str(j.path): i for i, j in enumerate(todo)}
-            records.sort(key=lambda r: order[r["asset"]])
+            # Largest input first: with a few long assets, starting them last would leave workers idle.
+            order = sorted(range(len(todo)), key=lambda i: -input_bytes(todo[i].path))
+            done = supervise([task_for(todo[i], config, overrides, cache_dir) for i in order], jobs,
+                             on_done=lambda _i, _record: bar.update())
+            records = [None] * len(todo)
+            for i, record in zip(order, done):
+                records[i] = record
         bar.close()
         summary = {
             "assets": records,
@@ -184,9 +240,22 @@ def run_batch(
             "seconds": round(time.perf_counter() - t0, 3),
             "temporaries_removed": removed,
         }
-        with atomic_path(out_dir / "batch.json") as tmp:
-            Path(tmp).write_text(json.dumps(summary, indent=1))
+        try:
+            with atomic_path(out_dir / "batch.json") as tmp:
+                Path(tmp).write_text(json.dumps(summary, indent=1))
+        except OSError as e:
+            raise OutputError(os_error_line(out_dir / "batch.json", e), summary) from None
     return summary
+
+
+def task_for(job: Job, config: BatchConfig, overrides: dict, cache_dir: str | None) -> Task:
+    """`job` as a supervised task, with its asset's limits (the defaults' when its options are
+    impossible: the child then fails with the config's one-line error)."""
+    try:
+        options = config.options_for(job.rel, overrides)
+    except ConfigError:
+        options = BAKE_DEFAULTS
+    return Task(job, config, overrides, cache_dir, Limits(options.asset_timeout_s, options.asset_memory_gib))
 
 
 def pin_to_share(index: int, count: int) -> None:
@@ -213,14 +282,6 @@ def pin_to_share(index: int, count: int) -> None:
         return
 
 
-def _pool_worker_init(counter, count: int) -> None:
-    # Each pool process takes the next index: spawn gives them no identity of their own.
-    with counter.get_lock():
-        index = counter.value
-        counter.value += 1
-    pin_to_share(index, count)
-
-
 def input_bytes(path: Path) -> int:
     """The size of the input file (0 when unreadable): the cue for which asset to start first."""
     try:
@@ -244,22 +305,35 @@ def _batch_lock(out_dir: Path, cache_dir: str | None) -> Iterator[tuple[int, flo
     temporary of ours older than its start is a dead run's (`sweep_temporaries`). Otherwise (another
     batch holds them, or the filesystem has no locks) only those untouched for `STALE_AFTER_S` go.
     The locks are advisory ``flock``s on ``<folder>/.sssbake.lock``, which stays in the folder.
+
+    At the end, a batch alone again sweeps every temporary older than that moment: what its own
+    killed workers left in the stage cache (their output temporaries are gone already,
+    `asset_process`). A folder that cannot be written raises OutputError.
     """
     folders = [out_dir] + ([Path(cache_dir)] if cache_dir is not None else [])
     with contextlib.ExitStack() as stack:
         files = []
         for folder in dict.fromkeys(f.absolute() for f in folders):
-            folder.mkdir(parents=True, exist_ok=True)
-            files.append(stack.enter_context(open(folder / LOCK_NAME, "a+b")))
-        # The run's start on the filesystem's clock (which stamps the temporaries' mtimes, and may
-        # not be this machine's on a network share).
-        os.utime(files[0].name)
-        start = os.stat(files[0].name).st_mtime
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+                files.append(stack.enter_context(open(folder / LOCK_NAME, "a+b")))
+            except OSError as e:
+                raise OutputError(os_error_line(folder, e)) from None
+        start = _now(files[0])
         alone = all(_lock(f, exclusive=True) for f in files)
         removed = sweep_temporaries(out_dir, cache_dir, start if alone else start - STALE_AFTER_S)
         for f in files:
             _lock(f, exclusive=False)  # flock's conversion is not atomic: harmless, nothing of ours exists yet
         yield removed, start
+        if all(_lock(f, exclusive=True) for f in files):
+            sweep_temporaries(out_dir, cache_dir, _now(files[0]))
+
+
+def _now(lock_file) -> float:
+    # The filesystem's clock (which stamps the temporaries' mtimes, and may not be this machine's
+    # on a network share), read by touching the lock file.
+    os.utime(lock_file.name)
+    return os.stat(lock_file.name).st_mtime
 
 
 def _lock(f, *, exclusive: bool) -> bool:

@@ -1,12 +1,14 @@
 """Batch on a Dask cluster (``sssbake bake … --dask SCHEDULER``): each asset is one
-``dask.distributed`` task running `batch.run_job`, so records, outputs and cache behave as in the
-local pool; `batch.run_batch` finds the assets, sweeps stale temporaries and writes ``batch.json``.
+``dask.distributed`` task supervising `batch.run_job` in a child process under the asset's limits
+(`asset_process.supervise`, as the local batch does), so records, outputs, limits and cache behave
+as locally; `batch.run_batch` finds the assets, sweeps stale temporaries and writes ``batch.json``.
 
 The workers write the outputs and the stage cache themselves: the inputs, the output folder and
 the cache folder must be the same paths on the client and on every worker (a shared filesystem),
 and the workers must run the same sssbake and libraries (checked before anything is submitted).
 
-A worker that dies mid-asset (killed, out of memory, a crash in native code) loses its task and
+A crash in native code, or an asset over its time or memory limit, ends only its child: a failed
+record, the worker lives on. A worker that dies mid-asset (killed, out of memory) loses its task and
 the scheduler runs it again elsewhere; after ``allowed-failures`` + 1 dead workers (the
 scheduler's setting, `ALLOWED_FAILURES` for ``local:N``) the asset is a failed record with a
 one-line error and the batch goes on.
@@ -26,7 +28,8 @@ from dataclasses import replace
 from importlib.metadata import PackageNotFoundError, requires, version
 from pathlib import Path
 
-from .batch import Job, input_bytes, pin_to_share, run_job
+from .asset_process import supervise
+from .batch import Job, input_bytes, task_for
 from .config import BatchConfig
 
 # A task whose worker dies is tried on ALLOWED_FAILURES + 1 workers in all, then is a failed record
@@ -77,6 +80,7 @@ def run_on_dask(
         ``local:N`` with N < 1, an unreachable scheduler, or workers whose sssbake or libraries
         differ from this process's.
     """
+    import dask
     from distributed import Client, LocalCluster
 
     if not jobs:
@@ -88,15 +92,18 @@ def run_on_dask(
     try:
         if local is not None:
             try:
-                cluster = LocalCluster(
-                    n_workers=int(local[1]), threads_per_worker=1, processes=True, host="127.0.0.1",
-                    dashboard_address=None, silence_logs=logging.ERROR,
-                    # the scheduler's HTTP routes (health, metrics) always listen: any free loopback port
-                    scheduler_kwargs={"allowed_failures": ALLOWED_FAILURES, "dashboard": False,
-                                      "dashboard_address": "127.0.0.1:0"},
-                    # no memory ceiling, as in the local pool: a big asset is not killed for its size
-                    memory_limit=0,
-                )
+                # Non-daemonic workers may fork their assets' children from a preloaded fork server
+                # (a daemonic one must start a fresh interpreter per asset, `asset_process`).
+                with dask.config.set({"distributed.worker.daemon": False}):
+                    cluster = LocalCluster(
+                        n_workers=int(local[1]), threads_per_worker=1, processes=True, host="127.0.0.1",
+                        dashboard_address=None, silence_logs=logging.ERROR,
+                        # the scheduler's HTTP routes (health, metrics) always listen: any free loopback port
+                        scheduler_kwargs={"allowed_failures": ALLOWED_FAILURES, "dashboard": False,
+                                          "dashboard_address": "127.0.0.1:0"},
+                        # no worker memory ceiling: each asset's child has its own (asset_memory_gib)
+                        memory_limit=0,
+                    )
             except (RuntimeError, OSError) as e:
                 # workers are spawned: a script that starts a batch needs `if __name__ == "__main__":`
                 why = _first_line(e).rstrip(".")
@@ -136,9 +143,9 @@ def _run(client, jobs, config, overrides, cache_dir, on_done, pin: int | None, s
         slots = max(1, sum(client.nthreads().values()))
         while len(futures) < slots and (i := next(pending, None)) is not None:
             job = jobs[i]
-            args = (replace(job, path=job.path.absolute()), config, overrides, cache)
-            fut = client.submit(*((_run_job_pinned, pin) if pin is not None else (run_job,)), *args,
-                                key=(f"sssbake-bake-{token}", i), pure=False, retries=RETRIES)
+            task = task_for(replace(job, path=job.path.absolute()), config, overrides, cache)
+            fut = client.submit(_run_supervised, pin, task, key=(f"sssbake-bake-{token}", i), pure=False,
+                                retries=RETRIES)
             futures[fut], started[fut] = i, time.perf_counter()
             done.add(fut)
 
@@ -160,16 +167,19 @@ def _run(client, jobs, config, overrides, cache_dir, on_done, pin: int | None, s
     return records
 
 
-def _run_job_pinned(count: int, job: Job, config: BatchConfig, overrides: dict, cache_dir: str | None) -> dict:
-    """`run_job` on worker `name` of a ``local:count`` cluster, confined to its share of the CPUs
-    (`batch.pin_to_share`; a restarted worker keeps its name, and so its share)."""
-    try:
-        from distributed import get_worker
+def _run_supervised(count: int | None, task) -> dict:
+    """`task`'s record from a supervised child of this worker (`asset_process.supervise`); on
+    worker `name` of a ``local:count`` cluster the child is confined to the worker's share of the
+    CPUs (`batch.pin_to_share`; a restarted worker keeps its name, and so its share)."""
+    pin = None
+    if count is not None:
+        try:
+            from distributed import get_worker
 
-        pin_to_share(int(get_worker().name), count)
-    except (ValueError, TypeError):  # not a LocalCluster worker of ours: run unconfined
-        pass
-    return run_job(job, config, overrides, cache_dir)
+            pin = (int(get_worker().name), count)
+        except (ValueError, TypeError):  # not a LocalCluster worker of ours: run unconfined
+            pass
+    return supervise([task], pin=pin)[0]
 
 
 def _as_given(record: dict, job: Job, since: float | None) -> dict:

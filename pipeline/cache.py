@@ -2,10 +2,14 @@
 
 A stage's key hashes its upstream key (ultimately the input file's bytes), the stage's name and
 version, and the options it reads; a re-run with unchanged inputs loads the result instead of
-computing it. Entries are pickles written atomically, so an interrupted run never leaves a
-half-written entry, and each carries the SHA-256 of its payload: a bit flipped on disk (or a
-truncated copy on a shared cache folder) is detected, reported and recomputed instead of
-silently feeding a wrong value downstream.
+computing it. An entry, ``<folder>/<key[:2]>/<key>.entry``, is `MAGIC`, the SHA-256 of its payload
+(32 bytes), then the payload: `cache_codec`'s JSON structure and raw ``.npy`` arrays, which
+rebuild only sssbake's own dataclasses and never run code named by the file (a shared or
+downloaded cache folder is untrusted input; pickle would run whatever an entry names). Entries are
+written atomically, so an interrupted run never leaves a half-written entry; a bit flipped on disk,
+a truncated copy or a payload the codec refuses is detected, reported and recomputed instead of
+silently feeding a wrong value downstream. The pickles of earlier versions (``<key>.pkl``) are
+never read.
 """
 
 from __future__ import annotations
@@ -13,11 +17,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import pickle
 import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+
+from .cache_codec import CacheFormatError, dumps, loads
 
 
 def file_digest(path: str | os.PathLike) -> str:
@@ -35,8 +40,8 @@ def stage_key(upstream: str, stage: str, version: int, params: dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-#: Entry header: format tag, then the payload's SHA-256 (32 bytes), then the pickled payload.
-MAGIC = b"sssbake-cache-1\n"
+#: Entry header: format tag, then the payload's SHA-256 (32 bytes), then the `cache_codec` payload.
+MAGIC = b"sssbake-cache-2\n"
 # `put`'s temporaries, ``<folder>/<key[:2]>/tmp<8 of mkstemp's characters>.tmp`` (`temporaries` finds them).
 _TEMPORARY = re.compile(r"tmp[a-z0-9_]{8}\.tmp")
 _SHARD = re.compile(r"[0-9a-f]{2}")
@@ -57,7 +62,7 @@ def temporaries(folder: str | os.PathLike) -> Iterator[Path]:
 
 
 class StageCache:
-    """Pickled, checksummed stage results under `folder` (None: caching off).
+    """Checksummed stage results under `folder` (None: caching off), stored by `cache_codec`.
 
     Attributes
     ----------
@@ -71,7 +76,7 @@ class StageCache:
         self.corrupt: list[str] = []
 
     def _path(self, key: str) -> Path:
-        return self.folder / key[:2] / f"{key}.pkl"
+        return self.folder / key[:2] / f"{key}.entry"
 
     def get(self, key: str):
         """The cached value, or None when absent, damaged (recorded in `corrupt`) or unreadable."""
@@ -83,13 +88,14 @@ class StageCache:
         except OSError:
             return None
         head = len(MAGIC) + 32
-        if data[:len(MAGIC)] != MAGIC or hashlib.sha256(data[head:]).digest() != data[len(MAGIC):head]:
+        payload = memoryview(data)[head:]
+        if data[:len(MAGIC)] != MAGIC or hashlib.sha256(payload).digest() != data[len(MAGIC):head]:
             self._discard(key, path)
             return None
         try:
-            return pickle.loads(data[head:])
-        except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, ValueError):
-            # intact but unloadable (written by another sssbake whose classes moved): recompute
+            return loads(payload)
+        except CacheFormatError:
+            # intact but refused: crafted, or written by another sssbake whose classes changed
             self._discard(key, path)
             return None
 
@@ -98,15 +104,22 @@ class StageCache:
         path.unlink(missing_ok=True)
 
     def put(self, key: str, value) -> None:
+        """Store `value` under `key` (TypeError, before anything is written, for a value
+        `cache_codec.dumps` cannot store)."""
         if self.folder is None:
             return
+        payload = dumps(value)
         path = self._path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="tmp", suffix=".tmp")  # the shape `temporaries` finds
         try:
-            payload = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
+            digest = hashlib.sha256()
+            for piece in payload:
+                digest.update(piece)
             with os.fdopen(fd, "wb") as f:
-                f.write(MAGIC + hashlib.sha256(payload).digest() + payload)
+                f.write(MAGIC + digest.digest())
+                for piece in payload:
+                    f.write(piece)
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)

@@ -19,6 +19,15 @@ from .tangents import vertex_tangents
 WELD_TOLERANCE = 1e-7
 # Triangles with area below this fraction of diagonal² carry no surface.
 DEGENERATE_AREA = 1e-14
+# A mesh whose vertices but for a few (`CORE_SHARE`) lie within this fraction of its bounding-box
+# diagonal is refused: its few outliers (corrupt positions) would set the weld and area tolerances
+# above, and at 1e-5 these would already merge points 1 % of the body apart.
+OUTLIER_EXTENT = 1e-5
+CORE_SHARE = 0.99
+# Largest coordinate magnitude, file units: the outputs' positions are float32 (glTF POSITION, USD
+# point3f), and below it products of up to three coordinate differences (areas, normals, volumes)
+# stay finite in float64 with 190 decades to spare.
+MAX_COORDINATE = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True, eq=False)
@@ -188,13 +197,30 @@ def _flip_winding(prim: Primitive, inward_normals: np.ndarray) -> Primitive:
     return replace(prim, faces=prim.faces[:, ::-1].copy(), normals=normals)
 
 
+def _refuse_outliers(source, name: str, positions: np.ndarray, diagonal: float) -> None:
+    """Raise an AssetError when a few of `positions` (n, 3) lie so far out that the rest fill
+    less than `OUTLIER_EXTENT` of the bounding-box `diagonal` (see `OUTLIER_EXTENT`)."""
+    if diagonal == 0:
+        return
+    distance = np.linalg.norm(positions - np.median(positions, axis=0), axis=1)
+    core = float(np.quantile(distance, CORE_SHARE))
+    if core >= OUTLIER_EXTENT * diagonal:
+        return
+    far = distance > np.sqrt(max(core, 1e-300) * distance.max())  # between the core and the farthest
+    raise AssetError(source, f"mesh {name!r}: {int(far.sum())} of {len(positions)} vertices lie far outside the "
+                             f"rest (up to {distance.max():.3g} from their median, {CORE_SHARE:.0%} of them within "
+                             f"{core:.3g}; they fill {core / diagonal:.2g} of the bounding box's diagonal): "
+                             "corrupt positions? fix or remove those vertices")
+
+
 def clean_scene(scene: Scene) -> CleanScene:
     """Clean every mesh of `scene` and build its welded surface.
 
     Raises
     ------
     AssetError
-        When no triangle with area survives (the asset has no surface to scatter on).
+        When a coordinate exceeds `MAX_COORDINATE`, or no triangle with area survives (the asset
+        has no surface to scatter on).
     """
     warnings: list[str] = []
     meshes: list[Mesh] = []
@@ -202,7 +228,13 @@ def clean_scene(scene: Scene) -> CleanScene:
     kept: dict[int, int] = {}
     for mi, mesh in enumerate(scene.meshes):
         allpos = np.concatenate([p.positions for p in mesh.primitives]) if mesh.primitives else np.zeros((0, 3))
+        largest = float(np.abs(allpos).max()) if len(allpos) else 0.0
+        if largest > MAX_COORDINATE:
+            raise AssetError(scene.source, f"mesh {mesh.name!r}: coordinates reach {largest:.3g}, too large to "
+                                           f"compute with (the limit is {MAX_COORDINATE:.3g}, float32's largest, "
+                                           f"which the outputs store positions in); rescale the asset")
         diag = float(np.linalg.norm(np.ptp(allpos, axis=0))) if len(allpos) else 0.0
+        _refuse_outliers(scene.source, mesh.name, allpos, diag)
         tol, min_area = WELD_TOLERANCE * diag, DEGENERATE_AREA * diag * diag
         prims = []
         for prim in mesh.primitives:

@@ -41,7 +41,8 @@ def _bake(args) -> int:
                  "kernels_global_vertices", "spectral_eigenpairs", "spectral_width_mm", "spectral_alpha",
                  "spectral_radius_mm", "spectral_variant", "spectral_basis", "screen_samples", "screen_uniform",
                  "screen_table_error", "lpv_resolution", "lpv_padding", "lpv_supersample", "lpv_field",
-                 "lpv_vein_mm", "lpv_max_steps", "max_bytes_per_vertex", "budget_rmse", "allow_roots"):
+                 "lpv_vein_mm", "lpv_max_steps", "max_bytes_per_vertex", "budget_rmse", "allow_roots",
+                 "asset_timeout_s", "asset_memory_gib"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     out = Path(args.out)
@@ -49,6 +50,7 @@ def _bake(args) -> int:
     if args.dask is not None and args.jobs != 1:
         print("error: give --jobs or --dask, not both (--dask local:N runs N local worker processes)", file=sys.stderr)
         return 2
+    from .batch import OutputError
     from .batch_dask import ClusterError  # distributed itself is imported only with --dask
 
     try:
@@ -56,6 +58,13 @@ def _bake(args) -> int:
             [Path(p) for p in args.paths], out, config, overrides, jobs=args.jobs, cache_dir=cache,
             progress=not args.quiet, dask=args.dask,
         )
+    except OutputError as e:
+        # the assets' own failures first (a full disk fails them too), then why there is no summary
+        for r in (e.summary or {}).get("assets", []):
+            if r["status"] == "failed":
+                print(f"error: {r['error']}", file=sys.stderr)
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     except (OSError, ConfigError, ClusterError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -378,6 +387,12 @@ def build_parser() -> argparse.ArgumentParser:
     _budget_arguments(b)
     _allow_root_argument(b)
     b.add_argument("--jobs", type=_whole_number_at_least_1, default=1, help="assets baked in parallel (default 1)")
+    b.add_argument("--asset-timeout", dest="asset_timeout_s", type=float, metavar="SECONDS",
+                   help=f"wall time one asset's worker may take before it is killed and the asset fails, 0 for no "
+                        f"limit (default {BAKE_DEFAULTS.asset_timeout_s:g})")
+    b.add_argument("--asset-memory", dest="asset_memory_gib", type=float, metavar="GIB",
+                   help=f"resident memory one asset's worker and its children may hold before they are killed and "
+                        f"the asset fails, 0 for no limit (default {BAKE_DEFAULTS.asset_memory_gib:g})")
     b.add_argument("--dask", metavar="SCHEDULER",
                    help="bake each asset as a task on a Dask cluster: its scheduler's address (tcp://host:8786; "
                         "inputs, OUT and the cache folder must be shared with the workers), or local:N for N "

@@ -4,7 +4,10 @@ the checks every reader's output must pass (finite positions, face indices in ra
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -86,7 +89,8 @@ def load_scene(path: str | os.PathLike, allow_roots: tuple[str, ...] = ()) -> Sc
     from .confine import Confinement
 
     try:
-        scene = reader(path, Confinement.for_asset(path, allow_roots))
+        with _quiet_parsers():
+            scene = reader(path, Confinement.for_asset(path, allow_roots))
     except AssetError:
         raise
     except OSError as e:
@@ -98,11 +102,29 @@ def load_scene(path: str | os.PathLike, allow_roots: tuple[str, ...] = ()) -> Sc
     return scene
 
 
+@contextlib.contextmanager
+def _quiet_parsers():
+    """Mute what parsers say about a broken file on their way to a result or an exception.
+
+    numpy warns (overflow in a cast) and trimesh logs tracebacks of what it recovered from; on the
+    command line both land on stderr as screenfuls. The readers' checks decide, in one line.
+    """
+    log = logging.getLogger("trimesh")
+    level = log.level
+    log.setLevel(logging.CRITICAL)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            yield
+    finally:
+        log.setLevel(level)
+
+
 def check_scene(scene: Scene) -> None:
     """Refuse a scene that later stages cannot work with.
 
-    Checks every primitive for (n, 3) positions that are all finite and (m, 3) faces whose
-    indices lie in ``[0, n)``, and the scene for at least one triangle.
+    Checks every primitive for (n, 3) positions that are all finite, finite UVs and colours, and
+    (m, 3) faces whose indices lie in ``[0, n)``, and the scene for at least one triangle.
 
     Raises
     ------
@@ -122,6 +144,12 @@ def check_scene(scene: Scene) -> None:
             bad = int(np.count_nonzero(~np.isfinite(pos).all(axis=1)))
             if bad:
                 raise AssetError(scene.source, f"non-finite vertex positions ({bad} of {len(pos)}) {where}")
+            # Normals and tangents that are not finite are recomputed by cleaning; UVs and colours cannot be.
+            named = [(f"texture coordinates (UV set {k})", uv) for k, uv in enumerate(prim.uvs)]
+            for what, values in named + [("vertex colours", prim.colors)]:
+                bad = 0 if values is None else int(np.count_nonzero(~np.isfinite(values).all(axis=1)))
+                if bad:
+                    raise AssetError(scene.source, f"non-finite {what} ({bad} of {len(values)} vertices) {where}")
             if faces.size:
                 lo, hi = int(faces.min()), int(faces.max())
                 if lo < 0:

@@ -9,6 +9,11 @@ extension is only used, is read as it is); EXT_mesh_gpu_instancing becomes one c
 instance; KHR_texture_transform is kept on the `TextureRef`; EXT_meshopt_compression is read
 through its uncompressed fallback. A file that requires any extension not in `SUPPORTED_REQUIRED`
 is refused, naming it (and, for compression, the command that removes it).
+
+Downloaded files are hostile input: every external buffer and image goes through the asset's
+`Confinement` before a byte is read, a buffer is read up to its declared ``byteLength`` only, and the
+glTF 2.0 rules a broken or malicious file breaks (asset version, accessor types per attribute
+semantic, strides, alignment, sparse and index ranges, GLB chunk layout) are refused in one line.
 """
 
 from __future__ import annotations
@@ -16,10 +21,11 @@ from __future__ import annotations
 import base64
 import binascii
 import json
+import re
 import struct
 from dataclasses import dataclass, replace
 from pathlib import Path
-from urllib.parse import unquote, unquote_to_bytes
+from urllib.parse import unquote, unquote_to_bytes, urlsplit
 
 import numpy as np
 import pygltflib
@@ -30,6 +36,8 @@ from .scene import (TEXTURE_TRANSFORM, Image, Mesh, Node, Primitive, Scene, Sour
                     TextureTransform)
 
 COMPONENT_DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
+COMPONENT_NAMES = {5120: "BYTE", 5121: "UNSIGNED_BYTE", 5122: "SHORT", 5123: "UNSIGNED_SHORT", 5125: "UNSIGNED_INT",
+                   5126: "FLOAT"}
 TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 MODE_NAMES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP", 4: "TRIANGLES", 5: "TRIANGLE_STRIP", 6: "TRIANGLE_FAN"}
 GLB_JSON_CHUNK = 0x4E4F534A
@@ -48,6 +56,32 @@ DECOMPRESS = {
     DRACO: "gltf-transform copy in.glb out.glb",
 }
 CORE_IMAGE_TYPES = ("image/png", "image/jpeg")
+#: Largest buffer read (declared byteLength): engines address buffers with 32-bit offsets, and a
+#: bit-flipped byteLength must not make the reader allocate or read gigabytes.
+MAX_BUFFER_BYTES = 2 << 30
+#: Largest encoded image read: a 16k x 16k PNG is far below it; a 1 GB "texture" is an attack or an accident.
+MAX_IMAGE_BYTES = 512 << 20
+QUANTIZATION = "KHR_mesh_quantization"
+#: glTF 2.0 "Meshes": per attribute semantic (indexed ones without ``_n``), the accessor types and the
+#: (componentType, normalized) pairs the spec allows. EXT_mesh_gpu_instancing's attributes as its spec says.
+_FLOAT = frozenset({(5126, False)})
+_UNORM = frozenset({(5121, True), (5123, True)})
+_SNORM = frozenset({(5120, True), (5122, True)})
+_INTEGERS = frozenset((c, n) for c in (5120, 5121, 5122, 5123) for n in (False, True))
+SEMANTICS = {
+    "POSITION": (("VEC3",), _FLOAT), "NORMAL": (("VEC3",), _FLOAT), "TANGENT": (("VEC4",), _FLOAT),
+    "TEXCOORD": (("VEC2",), _FLOAT | _UNORM), "COLOR": (("VEC3", "VEC4"), _FLOAT | _UNORM),
+    "JOINTS": (("VEC4",), frozenset({(5121, False), (5123, False)})), "WEIGHTS": (("VEC4",), _FLOAT | _UNORM),
+    "TRANSLATION": (("VEC3",), _FLOAT), "ROTATION": (("VEC4",), _FLOAT | _SNORM), "SCALE": (("VEC3",), _FLOAT),
+}
+#: What KHR_mesh_quantization adds to `SEMANTICS` (its "Extending Mesh Attributes" table; instancing's
+#: TRANSLATION and SCALE are allowed as widely as POSITION, a superset of what EXT_mesh_gpu_instancing lists).
+QUANTIZED = {
+    "POSITION": _INTEGERS, "NORMAL": _SNORM, "TANGENT": _SNORM, "TRANSLATION": _INTEGERS, "SCALE": _INTEGERS,
+    "TEXCOORD": frozenset({(5120, False), (5120, True), (5121, False), (5122, False), (5122, True), (5123, False)}),
+}
+INDEX_COMPONENTS = (5121, 5123, 5125)
+VERSION = re.compile(r"(\d+)\.(\d+)")
 IMAGE_SIGNATURES = ((b"\x89PNG", "image/png"), (b"\xff\xd8", "image/jpeg"), (b"RIFF", "image/webp"), (b"\xabKTX", "image/ktx2"))
 
 
@@ -57,7 +91,9 @@ class _Document:
 
     path: str
     gltf: pygltflib.GLTF2
-    buffers: tuple[bytes, ...]
+    buffers: tuple[bytes | memoryview, ...]
+    confinement: Confinement
+    quantized: bool  # KHR_mesh_quantization is used: integer attribute types are allowed
 
 
 def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
@@ -75,18 +111,24 @@ def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
     Scene
         Every mesh (TRIANGLES primitives; strips and fans converted to lists, points and lines
         skipped), the node hierarchy of the default scene, materials, textures and images (bytes
-        as stored). ``meters_per_unit`` is 1 (the glTF spec), up axis ``"Y"``.
+        as stored). ``meters_per_unit`` is 1 (the glTF spec), up axis ``"Y"``; ``warnings``
+        names GLB chunks of unknown type (ignored, as the spec requires).
 
     Raises
     ------
     AssetError
-        Bad GLB header or chunk, invalid JSON, missing or short buffers, indices out of range,
-        accessors of the wrong type, no triangles, a required extension sssbake does not support,
-        Draco data that does not decode, a texture whose only image needs an extension.
+        Bad GLB header or chunk layout, invalid JSON, an asset version other than 2.x, missing or
+        short buffers, a buffer or image URI outside the allowed folders or over its size bound,
+        indices out of range or equal to the primitive-restart value, accessors whose type,
+        componentType, stride or offset glTF 2.0 does not allow, no triangles, a required extension
+        sssbake does not support, Draco data that does not decode, a texture whose only image needs
+        an extension.
     """
+    confinement = confinement or Confinement.for_asset(path)
     data = Path(path).read_bytes()
+    warnings: list[str] = []
     if Path(path).suffix.lower() == ".glb" or data[:4] == b"glTF":
-        text, blob = _split_glb(path, data)
+        text, blob = _split_glb(path, data, warnings)
     else:
         text, blob = _decode_text(path, data), None
     gltf = _parse_json(path, text)
@@ -94,7 +136,8 @@ def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
     for extension in gltf.extensionsRequired or ():
         if extension not in SUPPORTED_REQUIRED:
             raise AssetError(path, _unsupported(extension))
-    doc = _Document(path, gltf, _load_buffers(path, gltf, blob))
+    quantized = QUANTIZATION in (gltf.extensionsUsed or []) + (gltf.extensionsRequired or [])
+    doc = _Document(path, gltf, _load_buffers(path, gltf, blob, confinement), confinement, quantized)
     meshes, skipped = [], []
     skinned = {node.mesh for node in gltf.nodes if node.mesh is not None and node.skin is not None}
     for i, mesh in enumerate(gltf.meshes):
@@ -123,6 +166,7 @@ def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
         images=images,
         up_axis="Y",
         meters_per_unit=1.0,
+        warnings=tuple(warnings),
     )
 
 
@@ -132,8 +176,13 @@ def _unsupported(extension: str, detail: str = "") -> str:
     return f"{extension} is required and not supported{detail}" + (f"; decompress it first ({fix})" if fix else "")
 
 
-def _split_glb(path: str, data: bytes) -> tuple[str, bytes | None]:
-    """JSON text and BIN chunk of a GLB container."""
+def _split_glb(path: str, data: bytes, warnings: list[str]) -> tuple[str, memoryview | None]:
+    """JSON text and BIN chunk of a GLB container (glTF 2.0 "GLB File Format Specification").
+
+    The JSON chunk comes first, the BIN chunk (if any) second; every chunk is 4-byte aligned and
+    inside the file, whose length the header states exactly. Chunks of unknown type after those
+    are skipped, as the spec requires, with a line in `warnings`.
+    """
     if len(data) < 12:
         raise AssetError(path, f"truncated file: {len(data)} bytes, shorter than the 12-byte GLB header")
     magic, version, length = struct.unpack_from("<4sII", data)
@@ -143,20 +192,37 @@ def _split_glb(path: str, data: bytes) -> tuple[str, bytes | None]:
         raise AssetError(path, f"unsupported GLB version {version} (only 2 is supported)")
     if length > len(data):
         raise AssetError(path, f"truncated file: GLB header declares {length} bytes, the file has {len(data)}")
-    chunks = []
-    offset = 12
-    while offset + 8 <= length:
+    if length < len(data):
+        raise AssetError(path, f"corrupt GLB: header declares {length} bytes, the file has {len(data)} "
+                               f"({len(data) - length} bytes after the last chunk)")
+    view = memoryview(data)
+    text, blob = None, None
+    offset, n = 12, 0
+    while offset < length:
+        if offset + 8 > length:
+            raise AssetError(path, f"corrupt GLB: {length - offset} stray bytes after chunk {n - 1}, too few for a chunk header")
         size, kind = struct.unpack_from("<II", data, offset)
         if offset + 8 + size > length:
-            raise AssetError(
-                path, f"truncated file: GLB chunk {len(chunks)} declares {size} bytes, only {length - offset - 8} remain"
-            )
-        chunks.append((kind, data[offset + 8 : offset + 8 + size]))
+            raise AssetError(path, f"truncated file: GLB chunk {n} declares {size} bytes, only {length - offset - 8} remain")
+        if size % 4:
+            raise AssetError(path, f"corrupt GLB: chunk {n} is {size} bytes long, not a multiple of 4 as chunks must be")
+        chunk = view[offset + 8 : offset + 8 + size]
+        if n == 0 and kind != GLB_JSON_CHUNK:
+            raise AssetError(path, f"corrupt GLB: the first chunk is not JSON (type 0x{kind:08X})")
+        if n == 0:
+            text = _decode_text(path, bytes(chunk))
+        elif kind == GLB_BIN_CHUNK and n == 1:
+            blob = chunk
+        elif kind in (GLB_JSON_CHUNK, GLB_BIN_CHUNK):
+            raise AssetError(path, f"corrupt GLB: chunk {n} is a {'JSON' if kind == GLB_JSON_CHUNK else 'BIN'} chunk; "
+                                   "only one JSON chunk, then at most one BIN chunk, may lead the file")
+        else:
+            warnings.append(f"GLB chunk {n} has unknown type 0x{kind:08X} ({size} bytes); ignored, as glTF 2.0 requires")
         offset += 8 + size
-    if not chunks or chunks[0][0] != GLB_JSON_CHUNK:
-        raise AssetError(path, "corrupt GLB: the first chunk is not JSON")
-    blob = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == GLB_BIN_CHUNK else None
-    return _decode_text(path, chunks[0][1]), blob
+        n += 1
+    if text is None:
+        raise AssetError(path, "corrupt GLB: no chunks after the header (the JSON chunk is missing)")
+    return text, blob
 
 
 def _decode_text(path: str, data: bytes) -> str:
@@ -173,10 +239,60 @@ def _parse_json(path: str, text: str) -> pygltflib.GLTF2:
         raise AssetError(path, f"invalid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
     if not isinstance(raw, dict):
         raise AssetError(path, f"invalid glTF: the top-level JSON value is a {type(raw).__name__}, not an object")
+    _check_version(path, raw.get("asset"))
+    null = _null_path(raw)
+    if null is not None:
+        raise AssetError(path, f"invalid glTF: {null} is null (glTF 2.0 allows null nowhere outside extras)")
     try:
         return pygltflib.GLTF2.gltf_from_json(text)
     except Exception as e:  # pygltflib's decoder fails with assorted types on misplaced JSON values
         raise AssetError(path, f"invalid glTF structure ({type(e).__name__}: {e})") from None
+
+
+def _null_path(raw: dict) -> str | None:
+    """Where a JSON null lies outside ``extras``, e.g. ``"meshes[0].primitives[1]"``, or None.
+
+    pygltflib keeps a null as None (an array entry, ``"accessors": null``), which every lookup would
+    trip on. A stack, not recursion: JSON nested as deep as the parser allows must not overflow it."""
+    stack = [("", raw)]
+    while stack:
+        where, value = stack.pop()
+        items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+        for key, item in items:
+            if key == "extras":
+                continue
+            here = f"{where}.{key}".lstrip(".") if isinstance(key, str) else f"{where}[{key}]"
+            if item is None:
+                return here
+            stack.append((here, item))
+    return None
+
+
+def _check_version(path: str, asset) -> None:
+    """Refuse a file that is not glTF 2.x or needs a newer minor version (glTF 2.0 "Asset")."""
+    version = asset.get("version") if isinstance(asset, dict) else None
+    if version is None:
+        raise AssetError(path, "no asset.version: not a glTF 2.0 file (the asset object and its version are required)")
+    if not isinstance(version, str):
+        raise AssetError(path, f"asset.version is {version!r}, not a version string such as '2.0'")
+    match = VERSION.fullmatch(version)
+    if match is None or int(match[1]) != 2:
+        raise AssetError(path, f"asset.version is {version!r}; only glTF 2.x is read "
+                               "(gltf-pipeline -i in.gltf -o out.gltf upgrades a glTF 1.0 file)")
+    minimum = asset.get("minVersion")
+    if minimum is not None:
+        match = VERSION.fullmatch(minimum) if isinstance(minimum, str) else None
+        if match is None or (int(match[1]), int(match[2])) > (2, 0):
+            raise AssetError(path, f"asset.minVersion is {minimum!r}; sssbake reads glTF 2.0")
+
+
+def _whole(path: str, value, what: str, least: int = 0, default: int | None = None) -> int:
+    """`value` as a whole number >= `least` (`default` when absent), or an `AssetError` naming `what`."""
+    if value is None and default is not None:
+        return default
+    if not isinstance(value, int) or isinstance(value, bool) or value < least:
+        raise AssetError(path, f"{what} is {value!r}; glTF 2.0 requires a whole number >= {least}")
+    return value
 
 
 def _item(doc: _Document, items: list, index, what: str):
@@ -186,8 +302,15 @@ def _item(doc: _Document, items: list, index, what: str):
     return items[index]
 
 
-def _uri_bytes(path: str, uri: str, what: str) -> tuple[bytes, str | None]:
-    """Bytes behind a data: URI or a file path relative to the asset, and the data URI's media type."""
+def _uri_bytes(path: str, uri, what: str, confinement: Confinement, limit: int) -> tuple[bytes, str | None]:
+    """Bytes behind a data: URI or a file the URI names, and the data URI's media type.
+
+    A relative reference is percent-decoded and taken from the asset's folder, a ``file:`` URI is its
+    path; either must pass `confinement` before it is opened, and at most `limit` bytes of it are read.
+    Other schemes (http:, ...) are refused: a batch never fetches.
+    """
+    if not isinstance(uri, str):
+        raise AssetError(path, f"{what} has uri {uri!r}, not a string")
     if uri.startswith("data:"):
         header, sep, payload = uri[5:].partition(",")
         if not sep:
@@ -198,46 +321,82 @@ def _uri_bytes(path: str, uri: str, what: str) -> tuple[bytes, str | None]:
             return unquote_to_bytes(payload), header or None
         except (binascii.Error, ValueError):
             raise AssetError(path, f"{what}: invalid base64 in data URI") from None
-    file = Path(path).parent / unquote(uri)
-    if not file.is_file():
+    reference = f"{what} URI '{uri}'"
+    parts = urlsplit(uri)
+    if parts.scheme == "file" and parts.netloc in ("", "localhost"):
+        file = Path(unquote(parts.path))
+    elif len(parts.scheme) > 1:  # one letter: a Windows drive, i.e. a path
+        raise AssetError(path, f"{reference} is not a file beside the asset; sssbake reads only relative paths, "
+                               "file: and data: URIs")
+    else:
+        file = Path(path).parent / unquote(uri)
+    if "\0" in str(file):
+        raise AssetError(path, f"{reference} contains a NUL character")
+    real = confinement.check(file, reference)
+    if not real.is_file():
         raise AssetError(path, f"{what}: missing file '{uri}'")
-    return file.read_bytes(), None
+    with open(real, "rb") as f:
+        return f.read(limit), None
 
 
-def _load_buffers(path: str, gltf: pygltflib.GLTF2, blob: bytes | None) -> tuple[bytes, ...]:
+def _load_buffers(path: str, gltf: pygltflib.GLTF2, blob: memoryview | None,
+                  confinement: Confinement) -> tuple[bytes | memoryview, ...]:
+    """Each buffer's first ``byteLength`` bytes (a GLB BIN chunk may be padded past it; an external
+    file is read no further)."""
     out = []
     for i, buf in enumerate(gltf.buffers):
+        size = _whole(path, buf.byteLength, f"buffer {i} byteLength", least=1)
+        if size > MAX_BUFFER_BYTES:
+            raise AssetError(path, f"buffer {i} declares byteLength {size}, over the {MAX_BUFFER_BYTES >> 30} GiB "
+                                   "sssbake reads per buffer")
         if buf.uri is None:
             if blob is None or i != 0:
                 raise AssetError(path, f"buffer {i} has no uri and the file has no GLB binary chunk")
             data = blob
         else:
-            data, _ = _uri_bytes(path, buf.uri, f"buffer {i}")
-        if buf.byteLength is not None and len(data) < buf.byteLength:
-            raise AssetError(path, f"truncated buffer {i}: {len(data)} bytes, byteLength says {buf.byteLength}")
-        out.append(data)
+            data, _ = _uri_bytes(path, buf.uri, f"buffer {i}", confinement, size)
+        if len(data) < size:
+            raise AssetError(path, f"truncated buffer {i}: {len(data)} bytes, byteLength says {size}")
+        out.append(data if len(data) == size else memoryview(data)[:size])
     return tuple(out)
 
 
-def _view(doc: _Document, index) -> tuple[memoryview, int | None]:
-    """Bytes of a buffer view and its byteStride."""
+def _view(doc: _Document, index) -> tuple[memoryview, int | None, int]:
+    """Bytes of a buffer view, its byteStride (checked: a multiple of 4 in [4, 252]) and its byteOffset."""
     view = _item(doc, doc.gltf.bufferViews, index, "buffer view")
     data = _item(doc, doc.buffers, view.buffer, "buffer")
-    start = view.byteOffset or 0
-    end = start + (view.byteLength or 0)
+    start = _whole(doc.path, view.byteOffset, f"buffer view {index} byteOffset", default=0)
+    end = start + _whole(doc.path, view.byteLength, f"buffer view {index} byteLength", least=1)
     if end > len(data):
         raise AssetError(
             doc.path, f"buffer {view.buffer} is shorter than buffer view {index} needs ({len(data)} < {end} bytes)"
         )
-    return memoryview(data)[start:end], view.byteStride
+    stride = view.byteStride
+    if stride is not None and (not isinstance(stride, int) or isinstance(stride, bool) or stride % 4
+                               or not 4 <= stride <= 252):
+        raise AssetError(doc.path, f"buffer view {index} has byteStride {stride!r}; glTF 2.0 requires a multiple "
+                                   "of 4 from 4 to 252")
+    return memoryview(data)[start:end], stride, start
 
 
-def _strided(doc: _Document, view_index, offset: int, dtype: str, count: int, width: int, what: str) -> np.ndarray:
-    """(count, width) array of `dtype` read from a buffer view, honouring its byteStride."""
-    data, stride = _view(doc, view_index)
-    itemsize = np.dtype(dtype).itemsize
-    stride = stride or itemsize * width
-    needed = offset + (count - 1) * stride + itemsize * width if count else 0
+def _strided(doc: _Document, view_index, offset, dtype: str, count: int, kind: str, what: str) -> np.ndarray:
+    """(count, width) array of `dtype` read from a buffer view, honouring its byteStride; width is the
+    number of components of accessor type `kind` (``"VEC3"``: 3).
+
+    `offset` (the accessor's byteOffset) and the view's own offset must be multiples of the component
+    size, and a stride must hold a whole element (glTF 2.0 "Data Alignment")."""
+    data, stride, view_offset = _view(doc, view_index)
+    offset = _whole(doc.path, offset, f"{what} byteOffset", default=0)
+    itemsize, width = np.dtype(dtype).itemsize, TYPE_SIZES[kind]
+    if offset % itemsize or (view_offset + offset) % itemsize:
+        raise AssetError(doc.path, f"{what} starts at byte {view_offset + offset} of its buffer ({offset} into buffer "
+                                   f"view {view_index}), not a multiple of its {itemsize}-byte component")
+    element = itemsize * width
+    if stride is not None and stride < element:
+        raise AssetError(doc.path, f"{what}: byteStride {stride} of buffer view {view_index} is smaller than the "
+                                   f"{element}-byte {kind} {np.dtype(dtype).name.replace('32', '')} element")
+    stride = stride or element
+    needed = offset + (count - 1) * stride + element if count else 0
     if needed > len(data):
         raise AssetError(doc.path, f"{what} needs {needed} bytes of buffer view {view_index}, which has {len(data)}")
     return np.ndarray((count, width), dtype, buffer=data, offset=offset, strides=(stride, itemsize)).copy()
@@ -251,23 +410,35 @@ def _accessor(doc: _Document, index, what: str) -> tuple[np.ndarray, pygltflib.A
     width = TYPE_SIZES.get(acc.type)
     if dtype is None or width is None:
         raise AssetError(doc.path, f"{name} has unknown componentType {acc.componentType} or type {acc.type!r}")
-    count = acc.count
-    if not isinstance(count, int) or count < 0:
-        raise AssetError(doc.path, f"{name} has invalid count {count!r}")
+    count = _whole(doc.path, acc.count, f"{name} count")
+    if acc.normalized and acc.componentType in (5125, 5126):
+        raise AssetError(doc.path, f"{name} is a normalized {COMPONENT_NAMES[acc.componentType]}; glTF 2.0 "
+                                   "normalizes only 8- and 16-bit integers")
     if acc.bufferView is None:
+        # All zeros (plus sparse values): a bit-flipped count must not allocate gigabytes.
+        if count * width * np.dtype(dtype).itemsize > MAX_BUFFER_BYTES:
+            raise AssetError(doc.path, f"{name} has count {count} and no buffer view: over the "
+                                       f"{MAX_BUFFER_BYTES >> 30} GiB sssbake reads per buffer")
         values = np.zeros((count, width), dtype)
     else:
-        values = _strided(doc, acc.bufferView, acc.byteOffset or 0, dtype, count, width, name)
+        values = _strided(doc, acc.bufferView, acc.byteOffset, dtype, count, acc.type, name)
     if acc.sparse is not None:
         sparse = acc.sparse
         index_dtype = COMPONENT_DTYPES.get(sparse.indices.componentType)
-        if index_dtype is None or index_dtype[1] != "u":
+        if sparse.indices.componentType not in INDEX_COMPONENTS:
             raise AssetError(doc.path, f"{name}: sparse indices have componentType {sparse.indices.componentType}")
-        where = _strided(doc, sparse.indices.bufferView, sparse.indices.byteOffset or 0, index_dtype, sparse.count, 1, name)
+        n = _whole(doc.path, sparse.count, f"{name} sparse count", least=1)
+        if n > count:
+            raise AssetError(doc.path, f"{name}: sparse count {n} exceeds the accessor's count {count}")
+        where = _strided(doc, sparse.indices.bufferView, sparse.indices.byteOffset, index_dtype, n, "SCALAR", name)
         where = where.ravel().astype(np.int64)
-        if len(where) and where.max() >= count:
-            raise AssetError(doc.path, f"{name}: sparse index {int(where.max())} out of range for {count} elements")
-        values[where] = _strided(doc, sparse.values.bufferView, sparse.values.byteOffset or 0, dtype, sparse.count, width, name)
+        if (np.diff(where) <= 0).any():
+            k = int(np.argmax(np.diff(where) <= 0)) + 1
+            raise AssetError(doc.path, f"{name}: sparse indices are not strictly increasing ({int(where[k])} "
+                                       f"follows {int(where[k - 1])})")
+        if where[-1] >= count:
+            raise AssetError(doc.path, f"{name}: sparse index {int(where[-1])} out of range for {count} elements")
+        values[where] = _strided(doc, sparse.values.bufferView, sparse.values.byteOffset, dtype, n, acc.type, name)
     return values, acc
 
 
@@ -279,9 +450,35 @@ def _floats(values: np.ndarray, normalized: bool) -> np.ndarray:
     return np.maximum(out, -1.0) if values.dtype.kind == "i" else out
 
 
-def _attribute(doc: _Document, index, name: str, types: tuple[str, ...], count: int | None, where: str,
+def _check_semantic(doc: _Document, acc: pygltflib.Accessor, index, name: str, where: str) -> None:
+    """Refuse an accessor whose type, componentType or normalized flag glTF 2.0 does not allow for
+    attribute `name` (`SEMANTICS`, widened by `QUANTIZED` when the file uses KHR_mesh_quantization).
+    Application-specific attributes (``_FOO``) are not checked."""
+    semantic = name.rsplit("_", 1)[0] if name[-1:].isdigit() else name
+    if semantic not in SEMANTICS:
+        return
+    types, components = SEMANTICS[semantic]
+    if doc.quantized:
+        components = components | QUANTIZED.get(semantic, frozenset())
+    if acc.type not in types:
+        raise AssetError(doc.path, f"{where}: {name} accessor {index} has type {acc.type}, expected {' or '.join(types)}")
+    if (acc.componentType, bool(acc.normalized)) not in components:
+        allowed = ", ".join(_component_name(*c) for c in sorted(components, key=lambda c: (c[0] != 5126, c)))
+        hint = "" if doc.quantized or semantic not in QUANTIZED else f" ({QUANTIZATION} allows more)"
+        raise AssetError(doc.path, f"{where}: {name} accessor {index} is "
+                                   f"{_component_name(acc.componentType, bool(acc.normalized))}; glTF 2.0 allows "
+                                   f"{allowed}{hint}")
+
+
+def _component_name(component, normalized: bool) -> str:
+    """``"normalized UNSIGNED_BYTE"`` and the like, for messages."""
+    return ("normalized " if normalized else "") + COMPONENT_NAMES.get(component, repr(component))
+
+
+def _attribute(doc: _Document, index, name: str, count: int | None, where: str,
                decoded: np.ndarray | None = None) -> np.ndarray:
-    """float64 (count, k) vertex attribute, checked for type and (unless `count` is None) length.
+    """float64 (count, k) vertex attribute, checked against its semantic (`_check_semantic`) and
+    (unless `count` is None) for length.
 
     `decoded`: the attribute's values as a KHR_draco_mesh_compression stream decodes them (the accessor
     then gives only the type, the count and ``normalized``)."""
@@ -295,8 +492,7 @@ def _attribute(doc: _Document, index, name: str, types: tuple[str, ...], count: 
         if values.shape[1] != TYPE_SIZES.get(acc.type) or len(values) != acc.count:
             raise AssetError(doc.path, f"{where}: {DRACO} decodes {name} as {len(values)} x {values.shape[1]} values, "
                                        f"accessor {index} says {acc.count} x {acc.type}")
-    if acc.type not in types:
-        raise AssetError(doc.path, f"{where}: {name} accessor {index} has type {acc.type}, expected {' or '.join(types)}")
+    _check_semantic(doc, acc, index, name, where)
     if count is not None and len(values) != count:
         raise AssetError(doc.path, f"{where}: {name} has {len(values)} elements but POSITION has {count}")
     return _floats(values, bool(acc.normalized))
@@ -307,25 +503,30 @@ def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primiti
     mode = 4 if prim.mode is None else prim.mode
     if mode not in (4, 5, 6):
         return None
+    if not isinstance(prim.attributes, (dict, pygltflib.Attributes)):
+        raise AssetError(doc.path, f"{where}: attributes is {prim.attributes!r}, not an object")
     raw = prim.attributes if isinstance(prim.attributes, dict) else vars(prim.attributes)
     attrs = {k: v for k, v in raw.items() if v is not None}
     if "POSITION" not in attrs:
         raise AssetError(doc.path, f"{where} has no POSITION attribute")
+    # Attributes sssbake does not read (JOINTS_n, WEIGHTS_n, ...) must still be what the spec allows.
+    for name, index in attrs.items():
+        _check_semantic(doc, _item(doc, doc.gltf.accessors, index, "accessor"), index, name, where)
     draco = _draco(doc, prim, attrs, where)
 
-    def read(name: str, types: tuple[str, ...], count: int | None) -> np.ndarray:
-        return _attribute(doc, attrs[name], name, types, count, where, draco.get(name))
+    def read(name: str, count: int | None) -> np.ndarray:
+        return _attribute(doc, attrs[name], name, count, where, draco.get(name))
 
-    positions = read("POSITION", ("VEC3",), None)
+    positions = read("POSITION", None)
     n = len(positions)
-    normals = read("NORMAL", ("VEC3",), n) if "NORMAL" in attrs else None
-    tangents = read("TANGENT", ("VEC4",), n) if "TANGENT" in attrs else None
+    normals = read("NORMAL", n) if "NORMAL" in attrs else None
+    tangents = read("TANGENT", n) if "TANGENT" in attrs else None
     uvs = []
     while f"TEXCOORD_{len(uvs)}" in attrs:
-        uvs.append(read(f"TEXCOORD_{len(uvs)}", ("VEC2",), n))
+        uvs.append(read(f"TEXCOORD_{len(uvs)}", n))
     colors = None
     if "COLOR_0" in attrs:
-        colors = read("COLOR_0", ("VEC3", "VEC4"), n)
+        colors = read("COLOR_0", n)
         if colors.shape[1] == 3:
             colors = np.column_stack([colors, np.ones(n)])
     if "indices" in draco:
@@ -333,12 +534,9 @@ def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primiti
     elif prim.indices is None:
         index = np.arange(n, dtype=np.int64)
     else:
-        values, acc = _accessor(doc, prim.indices, f"{where} indices")
-        if acc.type != "SCALAR":
-            raise AssetError(doc.path, f"{where}: indices accessor {prim.indices} has type {acc.type}, expected SCALAR")
-        index = values.ravel().astype(np.int64)
-        if len(index) and index.min() < 0:
-            raise AssetError(doc.path, f"{where}: negative index {int(index.min())} (indices must be unsigned)")
+        index = _indices(doc, prim.indices, where)
+    if len(index) and index.max() >= n:
+        raise AssetError(doc.path, f"{where}: index {int(index.max())} out of range for {n} vertices")
     if prim.material is not None:
         _item(doc, doc.gltf.materials, prim.material, "material")
     return Primitive(
@@ -350,6 +548,23 @@ def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primiti
         material=prim.material,
         tangents=tangents,
     )
+
+
+def _indices(doc: _Document, index, where: str) -> np.ndarray:
+    """int64 index list of a primitive's indices accessor: SCALAR, an unsigned integer type, not
+    normalized, and free of the primitive-restart value (the type's maximum), as glTF 2.0 requires."""
+    values, acc = _accessor(doc, index, f"{where} indices")
+    if acc.type != "SCALAR":
+        raise AssetError(doc.path, f"{where}: indices accessor {index} has type {acc.type}, expected SCALAR")
+    if acc.componentType not in INDEX_COMPONENTS or acc.normalized:
+        raise AssetError(doc.path, f"{where}: indices accessor {index} is "
+                                   f"{_component_name(acc.componentType, bool(acc.normalized))}; glTF 2.0 allows "
+                                   "UNSIGNED_BYTE, UNSIGNED_SHORT or UNSIGNED_INT")
+    restart = np.iinfo(values.dtype).max
+    if len(values) and values.max() == restart:
+        raise AssetError(doc.path, f"{where}: indices accessor {index} holds {restart}, the primitive-restart value "
+                                   f"of {COMPONENT_NAMES[acc.componentType]}, which glTF 2.0 forbids")
+    return values.ravel().astype(np.int64)
 
 
 def _draco(doc: _Document, prim: pygltflib.Primitive, attrs: dict, where: str) -> dict[str, np.ndarray]:
@@ -462,8 +677,8 @@ def _instance_matrices(doc: _Document, ext: dict, i: int) -> list[np.ndarray]:
     """(4, 4) transform of each EXT_mesh_gpu_instancing instance of node `i` (TRANSLATION, ROTATION, SCALE)."""
     attrs = ext.get("attributes") or {}
     where = f"node {i} {INSTANCING}"
-    read = {name: _attribute(doc, attrs[name], name, (kind,), None, where)
-            for name, kind in (("TRANSLATION", "VEC3"), ("ROTATION", "VEC4"), ("SCALE", "VEC3")) if name in attrs}
+    read = {name: _attribute(doc, attrs[name], name, None, where)
+            for name in ("TRANSLATION", "ROTATION", "SCALE") if name in attrs}
     counts = {len(v) for v in read.values()}
     if len(counts) != 1:
         raise AssetError(doc.path, f"{where}: " + ("no instance attributes" if not counts else
@@ -586,9 +801,11 @@ def _image(doc: _Document, im: pygltflib.Image, i: int) -> Image:
     if im.bufferView is not None:
         data = bytes(_view(doc, im.bufferView)[0])
     elif im.uri:
-        data, uri_mime = _uri_bytes(doc.path, im.uri, f"image {i}")
+        data, uri_mime = _uri_bytes(doc.path, im.uri, f"image {i}", doc.confinement, MAX_IMAGE_BYTES + 1)
     else:
         raise AssetError(doc.path, f"image {i} has neither a uri nor a bufferView")
+    if len(data) > MAX_IMAGE_BYTES:
+        raise AssetError(doc.path, f"image {i} is over the {MAX_IMAGE_BYTES >> 20} MiB sssbake reads per image")
     # The bytes' signature beats a declared type: exporters mislabel JPEGs as PNG, and the copy must not.
     mime = next((m for sig, m in IMAGE_SIGNATURES if data.startswith(sig)), None) or im.mimeType or uri_mime
     if mime is None:

@@ -8,6 +8,7 @@ the actual problem.
 from __future__ import annotations
 
 import io
+import os
 import re
 from pathlib import Path
 
@@ -56,10 +57,14 @@ def load_trimesh(path: str, confinement: Confinement | None = None) -> Scene:
         _check_ply(path, data)
     elif ext == ".stl":
         _check_stl(path, data)
+    else:
+        _check_obj_zero_index(path, data)
     kwargs = {"split_objects": True} if ext == ".obj" else {}
+    confinement = confinement or Confinement.for_asset(path)
+    resolver = _ConfinedResolver(path, confinement, _obj_mtllib(data) if ext == ".obj" else "")
     try:
-        loaded = trimesh.load_scene(path, process=False, **kwargs)
-    except IndexError as e:
+        loaded = trimesh.load_scene(path, process=False, resolver=resolver, **kwargs)
+    except (IndexError, OverflowError) as e:  # OverflowError: trimesh's int64 cast of an index past its range
         if ext == ".obj":
             raise AssetError(path, _obj_index_problem(data)) from e
         raise
@@ -68,6 +73,8 @@ def load_trimesh(path: str, confinement: Confinement | None = None) -> Scene:
         if short:
             raise AssetError(path, short) from e
         raise
+    if resolver.refused is not None:
+        raise resolver.refused
     meshes: list[Mesh] = []
     names: dict[str, int] = {}
     materials: dict[str | int, int] = {}
@@ -110,6 +117,87 @@ def load_trimesh(path: str, confinement: Confinement | None = None) -> Scene:
     )
 
 
+class _ConfinedResolver(trimesh.resolvers.FilePathResolver):
+    """trimesh's file resolver for an OBJ's ``mtllib`` and ``map_Kd`` and a PLY's ``TextureFile``,
+    reading only what the confinement allows.
+
+    A name is taken from the folder the asset is named in, then from the folder its real file
+    lies in (a symlinked asset's companions may sit beside either). trimesh swallows whatever a
+    material library or texture raises and goes on without it, so the first refusal is kept in
+    `refused` for the loader to raise once trimesh returns.
+    """
+
+    def __init__(self, path: str, confinement: Confinement, mtllib: str):
+        super().__init__(path)
+        self.confinement = confinement
+        self.mtllib = mtllib
+        self.folders = tuple(dict.fromkeys([self.parent, os.path.dirname(os.path.realpath(path))]))
+        self.refused: AssetError | None = None
+
+    def get(self, name: str) -> bytes:
+        name = name.strip()
+        what = f"{'material library' if name == self.mtllib else 'texture'} '{name}'"
+        # os.path.join keeps an absolute name absolute: it is checked, not re-rooted.
+        targets = [os.path.join(folder, name) for folder in self.folders]
+        target = next((t for t in targets if os.path.lexists(t)), targets[0])
+        try:
+            real = self.confinement.check(target, what)
+        except AssetError as e:
+            self.refused = self.refused or e
+            raise
+        return real.read_bytes()  # a missing file raises FileNotFoundError: trimesh goes on without it
+
+
+def _obj_mtllib(data: bytes) -> str:
+    """The material library an OBJ names: what follows its first ``mtllib``, as trimesh reads it."""
+    start = data.find(b"mtllib")
+    if start < 0:
+        return ""
+    end = data.find(b"\n", start)
+    return data[start + 6 : end if end >= 0 else len(data)].decode("utf-8", "replace").strip()
+
+
+def _check_obj_zero_index(path: str, data: bytes) -> None:
+    """Refuse an OBJ face corner whose vertex, texture or normal index is 0 (OBJ counts from 1).
+
+    Vectorised over the file's bytes (no Python loop over lines): a token of zeros (``0``,
+    ``-0``, ``00``) after a space, tab or slash, on a line whose first word is ``f``.
+    """
+    text = np.frombuffer(data, np.uint8)
+    padded = np.append(text, np.frombuffer(b"\n", np.uint8))  # the file's end ends the last token
+
+    def one_of(values: bytes, at: np.ndarray | slice = slice(None)) -> np.ndarray:
+        chosen = padded[at]
+        return np.logical_or.reduce([chosen == v for v in values])
+
+    separator = one_of(b" \t/", slice(None, -1))
+    before = np.zeros(len(text), bool)  # the bytes before position i end a token
+    before[1:] = separator[:-1]
+    before[2:] |= one_of(b"+-", slice(1, -2)) & separator[:-2]
+    starts = np.flatnonzero(before & (text == ord("0")))
+    end = starts + 1
+    while True:  # past the run of zeros: as many passes as the longest run
+        more = padded[end] == ord("0")
+        if not more.any():
+            break
+        end += more
+    starts = starts[one_of(b" \t/\r\n", end)]
+    if not len(starts):
+        return
+    newlines = np.flatnonzero(text == ord("\n"))
+    line = np.searchsorted(newlines, starts)
+    first = np.append(0, newlines + 1)[line]
+    while True:  # past the indentation of the candidate lines
+        blank = one_of(b" \t", first)
+        if not blank.any():
+            break
+        first += blank
+    face = (padded[first] == ord("f")) & one_of(b" \t", first + 1)
+    if face.any():
+        raise AssetError(path, f"face index 0 on line {int(line[face][0]) + 1}: OBJ indices start at 1 "
+                               "(negative ones count back)")
+
+
 def _primitive(geom: trimesh.Trimesh, material: int | None) -> Primitive:
     """Arrays of one trimesh geometry, keeping only what the file stated."""
     n = len(geom.vertices)
@@ -120,7 +208,9 @@ def _primitive(geom: trimesh.Trimesh, material: int | None) -> Primitive:
     uv = getattr(geom.visual, "uv", None) if geom.visual.kind == "texture" else None
     if uv is not None and len(uv) == n:
         uv = np.asarray(uv, np.float64)
-        uvs = (np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]),)
+        # OBJ's "vt u" leaves v at 0; trimesh cuts every vt row to the shortest one's length.
+        v = uv[:, 1] if uv.shape[1] > 1 else np.zeros(n)
+        uvs = (np.column_stack([uv[:, 0], 1.0 - v]),) if uv.shape[1] else ()
     if geom.visual.kind == "vertex":
         colors = np.asarray(geom.visual.vertex_colors, np.float64) / 255.0
     else:
@@ -186,7 +276,8 @@ def _obj_index_problem(data: bytes) -> str:
     count = len(re.findall(r"^v\s", text, re.M))
     face_text = "\n".join(re.findall(r"^f\s+(.*)$", text, re.M))
     # The first number of each corner ("7", "7/2", "7//3") is the vertex index.
-    index = np.array(re.findall(r"(?:^|\s)(-?\d+)", face_text), dtype=np.int64)
+    # Python ints: an index past int64 ("f 1 2 18446744073709551616") is named, not overflowed.
+    index = np.array([int(i) for i in re.findall(r"(?:^|\s)(-?\d+)", face_text)], dtype=object)
     bad = index[(index > count) | (index < -count) | (index == 0)]
     if not len(bad):
         return f"face index out of range for {count} vertices (texture or normal index out of range?)"
@@ -248,18 +339,26 @@ def _check_ply(path: str, data: bytes) -> None:
 
 
 def _check_stl(path: str, data: bytes) -> None:
-    """Raise `AssetError` for an STL whose data stops before its triangle count says it should."""
-    if len(data) >= 84:
-        count = int(np.frombuffer(data, "<u4", 1, 80)[0])
-        if 84 + 50 * count == len(data):
-            return
-    if data.lstrip()[:5].lower() == b"solid":
+    """Raise `AssetError` for an STL whose data does not match its triangle count.
+
+    A binary STL whose file holds more than its header's count is refused rather than read:
+    either count could be the wrong one (a writer that never filled the count in, or data
+    appended to the file), and reading by the header silently drops triangles.
+    """
+    count = int(np.frombuffer(data, "<u4", 1, 80)[0]) if len(data) >= 84 else None
+    if count is not None and 84 + 50 * count == len(data):
+        return
+    # A binary STL's header may start with "solid" too, but its records hold NUL bytes.
+    if data.lstrip()[:5].lower() == b"solid" and b"\0" not in data:
         if data.rfind(b"endsolid") < 0:
             raise AssetError(path, "truncated file: ASCII STL without 'endsolid'")
         return
-    if len(data) < 84:
+    if count is None:
         raise AssetError(path, f"truncated file: {len(data)} bytes, shorter than the 84-byte binary STL header")
+    declared = f"header declares {count} triangle{'s' if count != 1 else ''} ({84 + 50 * count} bytes)"
     if 84 + 50 * count > len(data):
-        raise AssetError(
-            path, f"truncated file: header declares {count} triangles ({84 + 50 * count} bytes), the file has {len(data)} bytes"
-        )
+        raise AssetError(path, f"truncated file: {declared}, the file has {len(data)} bytes")
+    held, extra = divmod(len(data) - 84, 50)
+    rest = f" and {extra} more bytes" if extra else ""
+    raise AssetError(path, f"{declared} but the file holds {held} triangles{rest} ({len(data)} bytes); "
+                           "fix the count at byte 80 or re-export the file")

@@ -20,6 +20,9 @@ What is read, at the earliest authored time (the default value when nothing is a
   become the material's ``volume`` / ``diffuse_transmission``. A mesh without a material but
   with a constant displayColor gets a material of that colour;
 - ``upAxis`` and, when authored, ``metersPerUnit``.
+
+Before the stage opens, every layer it would read (sublayers, references, payloads, value clips)
+is found by walking the layers and checked against the asset's `Confinement`.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import os
 import re
 
 import numpy as np
-from pxr import Gf, Tf, Usd, UsdGeom, UsdShade, UsdSkel
+from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdShade, UsdSkel
 
 from .confine import Confinement
 from .load import AssetError
@@ -70,16 +73,140 @@ def load_usd(path: str | os.PathLike, confinement: Confinement | None = None) ->
         does not fit their interpolation; no triangles.
     """
     path = os.fspath(path)
+    confinement = confinement or Confinement.for_asset(path)
     try:
         if os.path.getsize(path) == 0:
             raise AssetError(path, "empty file (0 bytes)")
     except OSError as e:
         raise AssetError(path, f"cannot read file: {e.strerror or e}") from None
     try:
-        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+        # A linked asset file is opened where it really lies: its layers anchor their
+        # references there, beside the real file, as a linked asset library expects.
+        real = os.path.realpath(path)
+        root = Sdf.Layer.FindOrOpen(real)
+    except Tf.ErrorException as e:
+        raise AssetError(path, f"corrupt USD file: {usd_error_message(e, real)}") from None
+    if root is None:
+        raise AssetError(path, "corrupt USD file: no USD file format reads it")
+    # The checked layers stay open (in Sdf's layer registry) while the stage composes, so the
+    # stage finds each of them there instead of opening anything the walk did not check.
+    layers = _LayerWalk(path, confinement).walk(root)
+    try:
+        stage = Usd.Stage.Open(root, Usd.Stage.LoadAll)
     except Tf.ErrorException as e:
         raise AssetError(path, f"corrupt USD file: {usd_error_message(e, path)}") from None
+    unchecked = sorted(layer.identifier for layer in stage.GetUsedLayers()
+                       if not layer.anonymous and layer.identifier not in layers)
+    if unchecked:
+        # A composition route the walk does not know; refuse rather than bake from it.
+        raise AssetError(path, f"the stage composed layer {unchecked[0]}, which no sublayer, reference, payload "
+                               "or value clip names; refused")
     return _Reader(path, stage).scene()
+
+
+class _LayerWalk:
+    """Every layer a stage would read, each checked against the confinement before it is opened.
+
+    Sublayers, references and payloads (in variants too) come from
+    ``Sdf.Layer.GetCompositionAssetDependencies``; value clips (which ``Usd.Stage.Open`` reads
+    to build their manifest) from the ``clips`` metadata of each prim spec. Variable
+    expressions in asset paths are evaluated with the layer stack's ``expressionVariables``, the
+    referencing stack's values winning, as composition does.
+    """
+
+    def __init__(self, asset: str, confinement: Confinement):
+        self.asset = asset
+        self.confinement = confinement
+        self.folder = os.path.dirname(os.path.abspath(asset))
+        self.resolver = Ar.GetResolver()
+
+    def walk(self, root: Sdf.Layer) -> dict[str, Sdf.Layer]:
+        """Identifier -> open layer, `root` and every layer reachable from it."""
+        layers = {root.identifier: root}
+        todo = [(root, dict(root.expressionVariables))]
+        while todo:
+            layer, variables = todo.pop()
+            kinds, clips = _arcs(layer, self.asset)
+            # internal references (</Prim>, no asset) are listed as ''
+            assets = [(a, kinds.get(a, "reference")) for a in layer.GetCompositionAssetDependencies() if a]
+            assets += [(a, "value clip") for a in clips]
+            for authored, kind in assets:
+                child = self.open(layer, authored, kind, variables)
+                if child is not None and child.identifier not in layers:
+                    layers[child.identifier] = child
+                    stack = variables if kind == "sublayer" else {**child.expressionVariables, **variables}
+                    todo.append((child, stack))
+        return layers
+
+    def name(self, layer: Sdf.Layer) -> str:
+        """`layer` as the user finds it: relative to the asset's folder when inside it."""
+        rel = os.path.relpath(layer.realPath, self.folder)
+        return layer.realPath if rel.startswith("..") else rel
+
+    def open(self, layer: Sdf.Layer, authored: str, kind: str, variables: dict) -> Sdf.Layer | None:
+        """The layer `authored` (as written in `layer`) names, None for an expression that names none."""
+        what = f"{kind} '{authored}' (from {self.name(layer)})"
+        asset = authored
+        if Sdf.VariableExpression.IsExpression(authored):
+            result = Sdf.VariableExpression(authored).Evaluate(variables)
+            if result.errors or not isinstance(result.value, str):
+                problem = "; ".join(result.errors) or f"evaluates to {result.value!r}, not a string"
+                raise AssetError(self.asset, f"{what}: {problem}")
+            if not result.value:
+                return None
+            asset = result.value
+        identifier = self.resolver.CreateIdentifier(asset, Ar.ResolvedPath(layer.resolvedPath))
+        resolved = str(self.resolver.Resolve(identifier))
+        file = Ar.SplitPackageRelativePathOuter(Sdf.Layer.SplitIdentifier(resolved or identifier)[0])[0]
+        if os.path.isabs(file):
+            self.confinement.check(file, what)
+        if not resolved:
+            raise AssetError(self.asset, f"{what} not found")
+        try:
+            child = Sdf.Layer.FindOrOpen(identifier)
+        except Tf.ErrorException as e:
+            raise AssetError(self.asset, f"corrupt {what}: {usd_error_message(e, file)}") from None
+        if child is None:
+            raise AssetError(self.asset, f"{what}: no USD file format reads it")
+        return child
+
+
+def _arcs(layer: Sdf.Layer, asset: str) -> tuple[dict[str, str], list[str]]:
+    """What `layer` names, as authored.
+
+    Returns
+    -------
+    kinds : dict of str to str
+        Asset path -> ``"sublayer"``, ``"reference"`` or ``"payload"``, variants included.
+    clips : list of str
+        Value clip asset paths and manifests.
+
+    Raises
+    ------
+    AssetError
+        For template value clips, whose files are only known by listing a folder.
+    """
+    kinds = dict.fromkeys(layer.subLayerPaths, "sublayer")
+    clips: list[str] = []
+
+    def visit(path: Sdf.Path) -> None:
+        spec = layer.GetObjectAtPath(path)
+        if isinstance(spec, Sdf.VariantSpec):
+            spec = spec.primSpec
+        elif not isinstance(spec, Sdf.PrimSpec):
+            return
+        for kind, items in (("reference", spec.referenceList), ("payload", spec.payloadList)):
+            kinds.update((item.assetPath, kind) for item in items.GetAddedOrExplicitItems() if item.assetPath)
+        for name, clip_set in (dict(spec.GetInfo("clips")) if spec.HasInfo("clips") else {}).items():
+            if "templateAssetPath" in clip_set:
+                raise AssetError(asset, f"value clip set '{name}' on <{path}> in {layer.realPath} uses a template "
+                                        "asset path, which is not supported; list the clip files in assetPaths")
+            clips.extend(a.path for a in clip_set.get("assetPaths", ()))
+            if clip_set.get("manifestAssetPath"):
+                clips.append(clip_set["manifestAssetPath"].path)
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return kinds, clips
 
 
 class _Reader:

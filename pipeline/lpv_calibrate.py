@@ -60,7 +60,9 @@ def render_scales(grid: LpvGrid, max_steps: int) -> np.ndarray:
     surface = np.array([[0.5 * grid.cell, 0.5 * grid.cell, depth * grid.cell]])
     up = np.array([[0.0, 0.0, 1.0]])
     want = total_diffuse_reflectance(mean["albedo"], grid.eta) * fresnel_transmittance(grid.eta, 1.0) / np.pi
-    accumulated = injected.copy()
+    # The injected lobe about -z renders nothing along +z (Φ/4π - Φ/4π), so only the propagated
+    # light is summed: the lobe's rounding (1e-16 Φ) would swamp it where a step keeps ~1e-34.
+    accumulated = np.zeros_like(injected)
     out = np.zeros((max_steps, 3))
     for s, current in enumerate(propagation_steps(slab, injected, max_steps, periodic=(True, True, False))):
         accumulated += current

@@ -35,6 +35,11 @@ RENDER_WEIGHTS = (np.sqrt(1.0 / (4.0 * np.pi)), 0.5 * np.sqrt(3.0 / (4.0 * np.pi
 #: Most propagation steps a frame may take.
 MAX_STEPS = 1024
 
+#: σ_tr Δx at which a step's attenuation stops falling, as in runtime_shaders/lpv_grid.glsl (where
+#: cosh must stay within float32): 3 / (2 + cosh 80) ≈ 1.1e-34 leaves no light after a step
+#: either way, and the rendering's scale, which grows as 1 / a (`lpv_calibrate`), stays a float32.
+DECAY_LIMIT = 80.0
+
 
 @dataclass(frozen=True)
 class LpvOptions:
@@ -74,7 +79,7 @@ def transport_factors(grid: LpvGrid) -> tuple[np.ndarray, np.ndarray]:
     albedo = grid.albedo.astype(np.float64)
     scatter = -np.expm1(-albedo * sigma_t * dx)
     sigma_tr = sigma_t * np.sqrt(3.0 * np.clip(1.0 - albedo, 0.0, 1.0))
-    attenuation = 3.0 / (2.0 + np.cosh(np.minimum(sigma_tr * dx, 700.0)))
+    attenuation = 3.0 / (2.0 + np.cosh(np.minimum(sigma_tr * dx, DECAY_LIMIT)))
     return scatter, np.where((grid.occupancy > 0)[..., None], attenuation, 0.0)
 
 

@@ -22,6 +22,15 @@ OPAQUE = "opaque"
 TECHNIQUES = ("prt", "kernels", "spectral", "screen", "lpv")
 #: Step counts the lpv rendering's scale is tabulated for by default (the runtime may use 1..this).
 LPV_MAX_STEPS = 64
+#: Per-asset limits (`asset_process`), sized for the 800k-vertex dragon (dragon_subdiv2.ply at 10 mm,
+#: default techniques) on 2 shared cores: its xatlas alone ran past atlas.py's own 600 s (608 s wall,
+#: 0.86 GB peak RSS by then; `/usr/bin/time -v`), and prt at K = 200 took 64 s and 4.6 GB at 200k
+#: vertices (README), so at 4x the vertices: an hour (6x the atlas) and 16 GiB (3.5x 4.6 GB).
+ASSET_TIMEOUT_S = 3600.0
+ASSET_MEMORY_GIB = 16.0
+#: Fields that bound a bake's worker but do not shape its outputs: no part of `BakeOptions.to_json`,
+#: so that a changed limit rebakes nothing.
+SUPERVISION = ("asset_timeout_s", "asset_memory_gib")
 
 
 @dataclass(frozen=True)
@@ -89,6 +98,12 @@ class BakeOptions:
     allow_roots : tuple of str
         Folders besides each asset's own that the files it references (glTF buffers and images,
         USD layers and textures, OBJ material libraries) may lie in (`confine.Confinement`).
+    asset_timeout_s : float
+        Seconds the asset's worker process may run before it is killed and the asset fails; 0: no
+        limit.
+    asset_memory_gib : float
+        GiB of resident memory the asset's worker and its children may hold together before they
+        are killed and the asset fails; 0: no limit.
     budget_rmse : float or None
         The image RMSE (`verify.verify_file`'s ``rmse_image``) each baked technique should stay
         under: the bake checks it on the full asset (`plan_check`), and with ``--techniques auto``
@@ -140,6 +155,8 @@ class BakeOptions:
     max_bytes_per_vertex: float | None = None
     budget_rmse: float | None = None
     allow_roots: tuple[str, ...] = ()
+    asset_timeout_s: float = ASSET_TIMEOUT_S
+    asset_memory_gib: float = ASSET_MEMORY_GIB
 
     def prt_compress(self) -> PrtCompressOptions:
         return PrtCompressOptions(self.prt_mode, self.prt_reference_fraction, self.prt_sh_order, self.prt_weights,
@@ -165,7 +182,8 @@ class BakeOptions:
         return MarbleOptions(vein_mm=self.lpv_vein_mm)
 
     def to_json(self) -> dict:
-        return asdict(self)
+        """The options that shape the outputs (all but `SUPERVISION`), as JSON values."""
+        return {k: v for k, v in asdict(self).items() if k not in SUPERVISION}
 
     def merged(self, overrides: dict) -> "BakeOptions":
         """A copy with `overrides` applied; unknown keys raise ValueError naming them."""
@@ -266,6 +284,9 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"budget_rmse must be an image RMSE in (0, 1), got {o.budget_rmse!r}")
     if not (1 <= o.lpv_max_steps <= MAX_STEPS):
         raise ValueError(f"lpv_max_steps must be a whole number in [1, {MAX_STEPS}], got {o.lpv_max_steps!r}")
+    for name in SUPERVISION:
+        if not (0 <= getattr(o, name) < float("inf")):
+            raise ValueError(f"{name} must be a finite number >= 0 (0: no limit), got {getattr(o, name)!r}")
     if not (isinstance(o.allow_roots, tuple) and all(isinstance(r, str) and r for r in o.allow_roots)):
         raise ValueError(f"allow_roots must be a list of folder paths, got {o.allow_roots!r}")
     missing = [r for r in o.allow_roots if not os.path.isdir(r)]

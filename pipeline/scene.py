@@ -191,6 +191,9 @@ class Scene:
     meters_per_unit : float or None
         What the file claims, if anything; never trusted for scattering (the asset's
         ``scale_mm`` decides), but reported.
+    warnings : tuple of str
+        What the reader went past without refusing (e.g. a GLB chunk of unknown type, which
+        the glTF spec says to ignore), one line each, for the asset's report.
     """
 
     source: str
@@ -202,6 +205,7 @@ class Scene:
     images: tuple[Image, ...] = ()
     up_axis: str = "Y"
     meters_per_unit: float | None = None
+    warnings: tuple[str, ...] = ()
 
     def world_matrices(self) -> dict[int, np.ndarray]:
         """World transform (4, 4) of every node reachable from the roots."""

@@ -71,6 +71,23 @@ def _glb(gltf: dict) -> bytes:
     return struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(text)) + struct.pack("<II", len(text), 0x4E4F534A) + text
 
 
+def _set(doc: dict, *edits: tuple[str, object]) -> dict:
+    """`doc` with each ``("accessors/0/componentType", value)`` edit applied (slash-separated keys and list indices)."""
+    for pointer, value in edits:
+        *parents, last = pointer.split("/")
+        node = doc
+        for key in parents:
+            node = node[int(key) if isinstance(node, list) else key]
+        node[int(last) if isinstance(node, list) else last] = value
+    return doc
+
+
+def _glb_plus(gltf: dict, *chunks: tuple[int, bytes]) -> bytes:
+    """`_glb(gltf)` followed by `chunks` (chunk type, data), the header's total length updated."""
+    data = _glb(gltf) + b"".join(struct.pack("<II", len(d), kind) + d for kind, d in chunks)
+    return data[:8] + struct.pack("<I", len(data)) + data[12:]
+
+
 def write_bad_inputs(folder: Path) -> dict[str, str]:
     """Write the broken files into `folder` (which must exist).
 
@@ -92,6 +109,13 @@ def write_bad_inputs(folder: Path) -> dict[str, str]:
         "index_out_of_range.obj": (_obj(TRIANGLE, np.array([[1, 2, 57]])), "face index 57 out of range for 4 vertices"),
         "negative_index.obj": (_obj(TRIANGLE, np.array([[1, 2, -50]])), "face index -50 out of range"),
         "garbage.obj": ("this is not a mesh\n{\"json\": true}\n<xml/>\n", "no triangles"),
+        "face_index_zero.obj": (_obj(TRIANGLE, np.array([[1, 2, 3], [0, 2, 3]])), "face index 0 on line 6: OBJ indices start at 1"),
+        "mtllib_outside.obj": ("mtllib ../../../../../../etc/passwd\n" + _obj(TRIANGLE, TRIANGLE_FACES + 1),
+                               "material library '../../../../../../etc/passwd' resolves to /etc/passwd, outside"),
+        "missing_reference.usda": ('#usda 1.0\ndef "A" (\n    references = @./gone.usda@\n)\n{\n}\n',
+                                   "reference './gone.usda' (from missing_reference.usda) not found"),
+        "sublayer_outside.usda": ("#usda 1.0\n(\n    subLayers = [@/etc/passwd@]\n)\n",
+                                  "sublayer '/etc/passwd' (from sublayer_outside.usda) resolves to /etc/passwd, outside"),
         "overstated_count.ply": (
             "ply\nformat ascii 1.0\nelement vertex 1200\nproperty float x\nproperty float y\nproperty float z\n"
             "element face 2\nproperty list uchar int vertex_indices\nend_header\n"
@@ -110,8 +134,50 @@ def write_bad_inputs(folder: Path) -> dict[str, str]:
         "nan_position.gltf": (json.dumps(_gltf(nan_quad, TRIANGLE_FACES)), "non-finite vertex positions (1 of 4)"),
         "position_vec2.gltf": (json.dumps(_gltf(TRIANGLE[:, :2], TRIANGLE_FACES[:1], position_type="VEC2")), "expected VEC3"),
         "short_buffer.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, truncate_buffer=10)), "shorter than buffer view 1 needs"),
-        "negative_index.gltf": (json.dumps(_gltf(TRIANGLE, -TRIANGLE_FACES - 1, signed_indices=True)), "negative index"),
+        "negative_index.gltf": (json.dumps(_gltf(TRIANGLE, -TRIANGLE_FACES - 1, signed_indices=True)),
+                                "indices accessor 1 is SHORT; glTF 2.0 allows UNSIGNED_BYTE, UNSIGNED_SHORT or UNSIGNED_INT"),
         "points_only.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, mode=0)), "no triangles"),
+        # glTF 2.0 rules (pipeline/load_gltf.py) and confinement of URIs (pipeline/confine.py)
+        "version_1.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("asset/version", "1.0"))),
+                           "asset.version is '1.0'; only glTF 2.x is read"),
+        "min_version_2_1.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("asset/minVersion", "2.1"))),
+                                 "asset.minVersion is '2.1'"),
+        "no_asset_version.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("asset", {}))), "no asset.version"),
+        "requires_unknown_extension.gltf": (
+            json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("extensionsRequired", ["EXT_unheard_of"]))),
+            "EXT_unheard_of is required and not supported"),
+        "position_uint32.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("accessors/0/componentType", 5125))),
+                                 "POSITION accessor 0 is UNSIGNED_INT; glTF 2.0 allows FLOAT"),
+        "position_normalized_float.gltf": (
+            json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("accessors/0/normalized", True))),
+            "POSITION accessor 0 is normalized FLOAT"),
+        "joints_vec3.gltf": (
+            json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("meshes/0/primitives/0/attributes/JOINTS_0", 0))),
+            "JOINTS_0 accessor 0 has type VEC3, expected VEC4"),
+        "stride_too_small.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("bufferViews/0/byteStride", 4))),
+                                  "byteStride 4 of buffer view 0 is smaller than the 12-byte VEC3 float element"),
+        "stride_not_multiple_of_4.gltf": (
+            json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("bufferViews/0/byteStride", 14))),
+            "buffer view 0 has byteStride 14; glTF 2.0 requires a multiple of 4 from 4 to 252"),
+        "unaligned_accessor.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("accessors/0/byteOffset", 2))),
+                                    "not a multiple of its 4-byte component"),
+        "restart_index.gltf": (json.dumps(_gltf(TRIANGLE, np.array([[0, 1, 65535]]))),
+                               "holds 65535, the primitive-restart value of UNSIGNED_SHORT"),
+        "index_past_vertices.gltf": (json.dumps(_gltf(TRIANGLE, np.array([[0, 1, 9]]))),
+                                     "index 9 out of range for 4 vertices"),
+        "huge_byte_length.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("buffers/0/byteLength", 3 << 30))),
+                                  "buffer 0 declares byteLength 3221225472, over the 2 GiB"),
+        "parent_buffer_uri.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, buffer_uri="../secret.bin")),
+                                   "buffer 0 URI '../secret.bin' resolves to"),
+        "etc_passwd_image.gltf": (
+            json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("images", [{"uri": "../../etc/passwd"}]))),
+            "image 0 URI '../../etc/passwd' resolves to"),
+        "absolute_buffer_uri.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, buffer_uri="/etc/passwd")),
+                                     "buffer 0 URI '/etc/passwd' resolves to /etc/passwd, outside the asset's folder"),
+        "file_scheme_uri.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, buffer_uri="file:///etc/passwd")),
+                                 "buffer 0 URI 'file:///etc/passwd' resolves to /etc/passwd"),
+        "remote_uri.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, buffer_uri="https://example.com/a.bin")),
+                            "URI 'https://example.com/a.bin' is not a file beside the asset"),
         "model.fbx": ("Kaydara FBX Binary", "unsupported file type '.fbx'"),
         "empty.usda": ("", "empty file"),
     }
@@ -119,8 +185,15 @@ def write_bad_inputs(folder: Path) -> dict[str, str]:
         "truncated_binary.ply": (good_ply[:-20], "truncated file"),
         "truncated.stl": (good_stl[:-30], "truncated file: header declares 2 triangles"),
         "empty.stl": (b"", "empty file"),
+        "undercounted.stl": (good_stl[:80] + struct.pack("<I", 1) + good_stl[84:],
+                             "header declares 1 triangle (134 bytes) but the file holds 2 triangles"),
         "bad_magic.glb": (b"gLTF" + _glb(_gltf(TRIANGLE, TRIANGLE_FACES))[4:], "bad magic"),
         "truncated.glb": (_glb(_gltf(TRIANGLE, TRIANGLE_FACES))[:60], "truncated file: GLB header declares"),
+        "bin_chunk_third.glb": (_glb_plus(_gltf(TRIANGLE, TRIANGLE_FACES), (0x4B4E554A, b"junk"), (0x004E4942, bytes(4))),
+                                "chunk 2 is a BIN chunk"),
+        "unaligned_chunk.glb": (_glb_plus(_gltf(TRIANGLE, TRIANGLE_FACES), (0x004E4942, bytes(3))),
+                                "chunk 1 is 3 bytes long, not a multiple of 4"),
+        "trailing_bytes.glb": (_glb(_gltf(TRIANGLE, TRIANGLE_FACES)) + bytes(8), "8 bytes after the last chunk"),
     }
     expected = {}
     for name, (text, needle) in text_files.items():

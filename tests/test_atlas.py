@@ -5,7 +5,7 @@ import pytest
 import trimesh
 import xatlas
 
-from sssbake.pipeline.atlas import AtlasError, compute_atlas
+from sssbake.pipeline.atlas import DIAGONAL, AtlasError, compute_atlas
 from sssbake.pipeline.atlas_worker import CRASH_ENV
 
 
@@ -48,9 +48,13 @@ def test_worker_reports_its_own_peak_memory(atlas):
 
 
 def test_matches_xatlas_in_process(parts, atlas):
+    # xatlas sees the mesh centred and scaled to a diagonal of DIAGONAL
+    everything = np.concatenate([p for p, _ in parts])
+    lo, hi = everything.min(axis=0), everything.max(axis=0)
     reference = xatlas.Atlas()
     for positions, faces in parts:
-        reference.add_mesh(positions.astype(np.float32), faces.astype(np.uint32))
+        normalised = (positions - (lo + hi) / 2) * (DIAGONAL / np.linalg.norm(hi - lo))
+        reference.add_mesh(normalised.astype(np.float32), faces.astype(np.uint32))
     pack = xatlas.PackOptions()
     pack.resolution, pack.padding = 128, 2
     reference.generate(xatlas.ChartOptions(), pack)
@@ -59,6 +63,22 @@ def test_matches_xatlas_in_process(parts, atlas):
         vmapping, _, uvs = reference[i]
         np.testing.assert_array_equal(part.vmapping, vmapping)
         np.testing.assert_array_equal(part.uvs, uvs.astype(np.float64))
+
+
+@pytest.mark.parametrize("size", [1e-9, 1e12, 1e30])
+def test_the_atlas_is_the_same_at_any_size(parts, atlas, size):
+    # before charting a normalised copy, a 1e-9 mesh got a 0 x 0 atlas and a 1e12 one never finished
+    scaled = compute_atlas([(p * size, f) for p, f in parts], resolution=128, padding=2, timeout_s=60)
+    assert (scaled.width, scaled.height, scaled.chart_count) == (atlas.width, atlas.height, atlas.chart_count)
+    for part, reference in zip(scaled.parts, atlas.parts):
+        np.testing.assert_array_equal(part.vmapping, reference.vmapping)
+        np.testing.assert_allclose(part.uvs, reference.uvs, atol=1e-6)
+
+
+def test_a_mesh_without_extent_is_refused(parts):
+    positions, faces = parts[0]
+    with pytest.raises(AtlasError, match=r"^atlas: the mesh's bounding-box diagonal is 0; it must be finite and > 0"):
+        compute_atlas([(np.zeros_like(positions), faces)], resolution=64, padding=2)
 
 
 def test_crash_is_retried_with_jitter(parts, monkeypatch):

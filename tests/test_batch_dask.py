@@ -112,7 +112,7 @@ def test_dask_outputs_match_the_local_pool(cluster, config, tmp_path):
         report = json.loads((tmp_path / "dask" / f"{name}.report.json").read_text())
         assert report["validation"]["gltf"]["errors"] == report["validation"]["usd"]["errors"] == 0
     # the workers filled the cache folder the client named
-    assert any((tmp_path / "dask-cache").rglob("*.pkl"))
+    assert any((tmp_path / "dask-cache").rglob("*.entry"))
 
 
 def test_an_asset_this_batch_baked_is_ok_even_when_a_rerun_finds_it_up_to_date(cluster, config, tmp_path):
@@ -264,3 +264,23 @@ def test_asset_that_kills_every_worker_fails_alone(cluster, config, tmp_path):
                               "(killed, out of memory or a crash in native code); the workers' logs say which")
     assert [r["status"] for r in rest] == ["ok", "ok"] and summary["failed"] == 1
     assert not (tmp_path / "out" / "crash.glb").exists()
+
+
+def test_dask_applies_the_asset_limits(cluster, config, tmp_path):
+    # each task supervises its asset in a child process, as the local batch does: over its time the
+    # asset fails alone and the worker lives on
+    from dataclasses import replace
+
+    src = _small_assets(tmp_path / "in")
+    _slow_asset(src / "slow.obj")
+    limited = replace(config, assets=config.assets + ({"glob": "slow.obj", "asset_timeout_s": 1.0},))
+    out = tmp_path / "out"
+    workers = {n.pid for n in cluster.workers.values()}
+    summary = _within(BATCH_TIMEOUT_S, run_batch, [src], out, limited, {}, cache_dir=None, progress=False,
+                      dask=cluster.scheduler_address)
+    slow, *rest = summary["assets"]
+    assert slow["status"] == "failed" and slow["outputs"] == []
+    assert slow["error"] == f"{src / 'slow.obj'}: exceeded 1 s; raise --asset-timeout (or asset_timeout_s in the config)"
+    assert [r["status"] for r in rest] == ["ok", "ok"]
+    assert {n.pid for n in cluster.workers.values()} == workers  # no worker died for it
+    assert not [p for p in out.rglob("*") if p.name.startswith(("slow", ".slow"))]

@@ -81,7 +81,7 @@ def test_a_damaged_cache_entry_is_recomputed_and_reported(tmp_path):
     args = ["bake", str(src / "torus.ply"), "--config", str(src / "sssbake.toml"), "--techniques", "none",
             "--atlas-resolution", "64", "--cache-dir", str(cache), "-q"]
     assert main([*args, "-o", str(tmp_path / "a")]) == 0
-    for entry in cache.rglob("*.pkl"):  # one flipped bit in every entry's payload
+    for entry in cache.rglob("*.entry"):  # one flipped bit in every entry's payload
         data = bytearray(entry.read_bytes())
         data[len(data) // 2] ^= 0x01
         entry.write_bytes(bytes(data))

@@ -28,12 +28,11 @@ def _png() -> bytes:
 
 def _two_node_gltf(png: bytes) -> pygltflib.GLTF2:
     """Root node (TRS, indexed mesh, material 0 with texture) with a child (matrix, non-indexed mesh)."""
-    chunks = [TRI.tobytes(), NORMALS.tobytes(), UV.tobytes(), TRI_FACES.tobytes() + b"\0\0",
+    chunks = [TRI.tobytes(), NORMALS.tobytes(), UV.tobytes(), TRI_FACES.tobytes(),
               TRI[:3].tobytes(), COLORS.tobytes(), png]
     offsets = np.concatenate([[0], np.cumsum([len(c) for c in chunks])])
     blob = b"".join(chunks)
     views = [pygltflib.BufferView(buffer=0, byteOffset=int(o), byteLength=len(c)) for o, c in zip(offsets, chunks)]
-    views[3].byteLength = TRI_FACES.nbytes
     acc = pygltflib.Accessor
     child = np.eye(4)
     child[:3, 3] = [0.0, 0.0, 5.0]
