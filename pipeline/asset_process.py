@@ -25,7 +25,6 @@ process (a Dask worker under its nanny) may not have multiprocessing children; t
 
 from __future__ import annotations
 
-import ctypes
 import json
 import multiprocessing
 import os
@@ -43,6 +42,7 @@ from pathlib import Path
 import psutil
 
 from ..exporters.atomic import temporary_target
+from .parent_death import die_with_parent
 
 # Seconds between two looks at a child's time and memory.
 POLL_S = 0.1
@@ -261,7 +261,7 @@ def child_main(task: Task, tmp: str, slot: int, slots: int) -> None:
 
     if os.getsid(0) != os.getpid():
         os.setsid()  # a group of its own, so that killing it reaches every descendant
-    _die_with_parent()
+    die_with_parent()
     # Its temporaries (the atlas's, the validators') in a folder the supervisor removes, even after a kill.
     os.environ["TMPDIR"] = tmp
     tempfile.tempdir = tmp
@@ -271,13 +271,6 @@ def child_main(task: Task, tmp: str, slot: int, slots: int) -> None:
     part.write_text(json.dumps(record))
     part.rename(Path(tmp) / "record.json")
 
-
-def _die_with_parent() -> None:
-    # Linux: SIGKILL this child when its parent dies (the batch killed outright), not bake on unseen.
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):  # not Linux
-        pass
 
 
 if __name__ == "__main__":

@@ -20,6 +20,8 @@ import sys
 import numpy as np
 import xatlas
 
+from sssbake.pipeline.parent_death import die_with_parent
+
 CRASH_ENV = "SSSBAKE_ATLAS_TEST_CRASHES"
 
 
@@ -38,6 +40,7 @@ def _peak_rss_mb() -> float:
 
 def main(argv: list[str]) -> None:
     in_path, out_path, attempt = argv[0], argv[1], int(argv[2])
+    die_with_parent()
     if attempt < int(os.environ.get(CRASH_ENV, "0")):
         os.kill(os.getpid(), signal.SIGSEGV)
 

@@ -42,7 +42,7 @@ from .thickness import bake_thickness
 from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
-STAGE_VERSIONS = {"load": 3, "clean": 2, "atlas": 3, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
+STAGE_VERSIONS = {"load": 3, "clean": 3, "atlas": 3, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
                   "spectral": 1, "screen": 1, "lpv": 2, "pilot": 3}
 
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071

@@ -102,10 +102,16 @@ def area_weighted_normals(positions: np.ndarray, faces: np.ndarray) -> np.ndarra
 
 
 def _normalise(v: np.ndarray) -> np.ndarray:
-    length = np.linalg.norm(v, axis=1, keepdims=True)
-    ok = length[:, 0] > 0
+    """Unit rows of `v` (n, 3); zero or non-finite rows become +z.
+
+    Each row is divided by its largest component first: the length of an authored normal of
+    1e300 would overflow, and one of 1e-310 underflow, where the direction is still good.
+    """
+    largest = np.abs(v).max(axis=1, keepdims=True) if len(v) else np.zeros((0, 1))
+    ok = np.isfinite(largest[:, 0]) & (largest[:, 0] > 0)
     out = np.tile([0.0, 0.0, 1.0], (len(v), 1))
-    out[ok] = v[ok] / length[ok]
+    w = v[ok] / largest[ok]
+    out[ok] = w / np.linalg.norm(w, axis=1, keepdims=True)
     return out
 
 
@@ -127,15 +133,23 @@ def weld_positions(positions: np.ndarray, tolerance: float) -> tuple[np.ndarray,
     return positions[first], index.reshape(-1).astype(np.int64)
 
 
-def _clean_primitive(prim: Primitive, tol: float, min_area: float) -> tuple[Primitive, int]:
-    """Drop degenerate faces and the vertices nothing references, and unusable normals or tangents."""
+def _clean_primitive(prim: Primitive, tol: float, min_area: float) -> tuple[Primitive, int, int]:
+    """Drop degenerate and repeated faces, the vertices nothing references, and unusable normals or
+    tangents; also returns how many degenerate and how many repeated faces went."""
     _, welded_index = weld_positions(prim.positions, tol)
     f = prim.faces
     wf = welded_index[f]
     distinct = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2])
     keep = distinct & (triangle_areas(prim.positions, f) > min_area)
     dropped = int((~keep).sum())
-    f = f[keep]
+    f, wf = f[keep], wf[keep]
+    # A face on the same welded corners, in the same turning order, as an earlier one adds its area
+    # twice to every sum and stalls xatlas (400k copies of one triangle ran for hours); the
+    # opposite order is a back face, kept.
+    turned = np.take_along_axis(wf, (np.argmin(wf, axis=1)[:, None] + np.arange(3)) % 3, axis=1)
+    first = np.sort(np.unique(turned, axis=0, return_index=True)[1])
+    repeated = len(f) - len(first)
+    f = f[first]
     used = np.unique(f)
     remap = np.full(len(prim.positions), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
@@ -143,11 +157,12 @@ def _clean_primitive(prim: Primitive, tol: float, min_area: float) -> tuple[Prim
     positions = prim.positions[used]
     normals = prim.normals[used] if prim.normals is not None else None
     if normals is not None:
-        bad = ~np.all(np.isfinite(normals), axis=1) | (np.linalg.norm(normals, axis=1) < 1e-12)
+        # the largest component, not the length, which overflows for a finite 1e300
+        bad = ~np.all(np.isfinite(normals), axis=1) | (np.abs(normals).max(axis=1, initial=0.0) < 1e-12)
         normals = None if bad.any() else _normalise(normals)
     tangents = prim.tangents[used] if prim.tangents is not None else None
     if tangents is not None:
-        bad = ~np.all(np.isfinite(tangents), axis=1) | (np.linalg.norm(tangents[:, :3], axis=1) < 1e-12)
+        bad = ~np.all(np.isfinite(tangents), axis=1) | (np.abs(tangents[:, :3]).max(axis=1, initial=0.0) < 1e-12)
         tangents = None if bad.any() else tangents
     cleaned = replace(
         prim,
@@ -158,7 +173,7 @@ def _clean_primitive(prim: Primitive, tol: float, min_area: float) -> tuple[Prim
         colors=prim.colors[used] if prim.colors is not None else None,
         tangents=tangents,
     )
-    return cleaned, dropped
+    return cleaned, dropped, repeated
 
 
 def weld_surface(prims: list[Primitive], tol: float) -> Surface:
@@ -238,9 +253,12 @@ def clean_scene(scene: Scene) -> CleanScene:
         tol, min_area = WELD_TOLERANCE * diag, DEGENERATE_AREA * diag * diag
         prims = []
         for prim in mesh.primitives:
-            cleaned, dropped = _clean_primitive(prim, tol, min_area)
+            cleaned, dropped, repeated = _clean_primitive(prim, tol, min_area)
             if dropped:
                 warnings.append(f"mesh {mesh.name!r}: dropped {dropped} degenerate triangles")
+            if repeated:
+                warnings.append(f"mesh {mesh.name!r}: dropped {repeated} repeated triangles (the same corners as "
+                                "another triangle's)")
             if len(cleaned.faces):
                 prims.append(cleaned)
         if not prims:

@@ -22,10 +22,10 @@ OPAQUE = "opaque"
 TECHNIQUES = ("prt", "kernels", "spectral", "screen", "lpv")
 #: Step counts the lpv rendering's scale is tabulated for by default (the runtime may use 1..this).
 LPV_MAX_STEPS = 64
-#: Per-asset limits (`asset_process`), sized for the 800k-vertex dragon (dragon_subdiv2.ply at 10 mm,
-#: default techniques) on 2 shared cores: its xatlas alone ran past atlas.py's own 600 s (608 s wall,
-#: 0.86 GB peak RSS by then; `/usr/bin/time -v`), and prt at K = 200 took 64 s and 4.6 GB at 200k
-#: vertices (README), so at 4x the vertices: an hour (6x the atlas) and 16 GiB (3.5x 4.6 GB).
+#: Per-asset limits (`asset_process`), sized for the 800k-vertex dragon (dragon_subdiv2.ply, skin2 at
+#: 10 mm, default techniques: screen) on 2 shared cores: 430 s and 1.79 GiB peak resident memory of
+#: the batch's process tree (the atlas 405 s of it). A prt bake of it (K = 200 took 64 s and 4.6 GB at
+#: 200k vertices, README) scales to about 4x that memory, hence 16 GiB; an hour is 8x the measured bake.
 ASSET_TIMEOUT_S = 3600.0
 ASSET_MEMORY_GIB = 16.0
 #: Fields that bound a bake's worker but do not shape its outputs: no part of `BakeOptions.to_json`,

@@ -92,3 +92,36 @@ def test_inward_winding_is_flipped_outward():
     # An open, flat patch encloses nothing and is never flipped.
     flat = Primitive(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 2, 1]]))
     assert clean_scene(_scene(flat)).scene.meshes[0].primitives[0].faces.tolist() == [[0, 2, 1]]
+
+
+@pytest.mark.parametrize("length", [1e300, 1e200, 1.0, 1e-6])
+def test_authored_normals_of_any_finite_length_keep_their_direction_silently(length):
+    import warnings
+
+    s = trimesh.creation.icosphere(subdivisions=2)
+    directions = np.asarray(s.vertices) + [0.1, -0.2, 0.05]  # not the computed normals, so they must be the authored ones
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an overflowing length would warn and give zero normals
+        out = clean_scene(_scene(Primitive(np.asarray(s.vertices), np.asarray(s.faces), normals=directions * length)))
+    np.testing.assert_allclose(out.scene.meshes[0].primitives[0].normals, directions, rtol=1e-12, atol=1e-15)
+
+
+def test_repeated_triangles_go_and_back_faces_stay():
+    s = trimesh.creation.icosphere(subdivisions=2)
+    v, f = np.asarray(s.vertices), np.asarray(s.faces)
+    # the first face again three times, once turned (same order from another corner), once as a
+    # seam copy (its own vertices, welded to the same corners), and one face reversed (a back face)
+    copies = np.vstack([v, v[f[0]]])
+    seam = np.arange(len(v), len(v) + 3)
+    faces = np.vstack([f, f[:1], f[:1, [1, 2, 0]], seam[None], f[1:2, ::-1]])
+    out = clean_scene(_scene(Primitive(copies, faces)))
+    kept = out.scene.meshes[0].primitives[0].faces
+    assert len(kept) == len(f) + 1
+    assert any("dropped 3 repeated triangles" in w for w in out.warnings)
+    np.testing.assert_allclose(out.surfaces[0].area, s.area + _area(v, f[1]), rtol=1e-12)  # the back face counts once
+
+
+def _area(v, face):
+    a, b, c = v[face]
+    return 0.5 * np.linalg.norm(np.cross(b - a, c - a))
