@@ -149,7 +149,7 @@ class _Child:
             self.proc = ctx.Process(target=child_main, args=args, daemon=True)
             self.proc.start()
         else:
-            self.proc = subprocess.Popen([sys.executable, "-m", __name__], stdin=subprocess.PIPE,
+            self.proc = subprocess.Popen([sys.executable, "-m", __name__, str(os.getpid())], stdin=subprocess.PIPE,
                                          start_new_session=True)
             self.proc.stdin.write(pickle.dumps(args))
             self.proc.stdin.close()
@@ -274,4 +274,5 @@ def child_main(task: Task, tmp: str, slot: int, slots: int) -> None:
 
 
 if __name__ == "__main__":
+    die_with_parent(int(sys.argv[1]))  # before the task's imports: its parent may die meanwhile
     child_main(*pickle.loads(sys.stdin.buffer.read()))

@@ -23,6 +23,7 @@ charts at diagonal 0.1 but 54, 48 and 49 at 1, 10 and 100 (100 the fastest).
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -163,7 +164,8 @@ def compute_atlas(
             np.savez(in_path, **arrays)
             try:
                 proc = subprocess.run(
-                    [sys.executable, "-m", "sssbake.pipeline.atlas_worker", str(in_path), str(out_path), str(attempt)],
+                    [sys.executable, "-m", "sssbake.pipeline.atlas_worker", str(in_path), str(out_path), str(attempt),
+                     str(os.getpid())],
                     capture_output=True, text=True, timeout=timeout_s,
                 )
             except subprocess.TimeoutExpired:

@@ -1,7 +1,7 @@
 """Child-process entry point for `sssbake.pipeline.atlas`: runs xatlas, whose crashes (SIGSEGV on
 very regular meshes) must not take the batch down with them.
 
-Usage: ``python -m sssbake.pipeline.atlas_worker IN.npz OUT.npz ATTEMPT``.
+Usage: ``python -m sssbake.pipeline.atlas_worker IN.npz OUT.npz ATTEMPT PARENT_PID``.
 
 ``IN.npz`` holds ``resolution``, ``padding``, ``n_parts`` and per part ``positions_<i>`` (float32)
 and ``faces_<i>`` (uint32). ``OUT.npz`` gets ``width``, ``height``, ``chart_count``, ``peak_rss_mb``
@@ -39,8 +39,8 @@ def _peak_rss_mb() -> float:
 
 
 def main(argv: list[str]) -> None:
-    in_path, out_path, attempt = argv[0], argv[1], int(argv[2])
-    die_with_parent()
+    in_path, out_path, attempt, parent = argv[0], argv[1], int(argv[2]), int(argv[3])
+    die_with_parent(parent)
     if attempt < int(os.environ.get(CRASH_ENV, "0")):
         os.kill(os.getpid(), signal.SIGSEGV)
 

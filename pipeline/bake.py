@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import time
 from dataclasses import dataclass, replace
 from importlib.metadata import version
@@ -24,6 +25,7 @@ from .atlas import compute_atlas
 from .baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
 from .cache import StageCache, file_digest, stage_key
 from .clean import CleanScene, clean_scene
+from .confine import Confinement
 from .fallback import make_fallback
 from .load import AssetError, load_scene
 from .materials import Material
@@ -42,7 +44,7 @@ from .thickness import bake_thickness
 from .thickness_map import bake_thickness_map
 
 # Bump a stage's version when its output for the same input changes.
-STAGE_VERSIONS = {"load": 3, "clean": 3, "atlas": 3, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
+STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 3, "thickness": 1, "thickness_map": 1, "prt": 3, "kernels": 3,
                   "spectral": 1, "screen": 1, "lpv": 2, "pilot": 3}
 
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
@@ -153,6 +155,33 @@ def job_key(digest: str, options: BakeOptions, picks: dict | None = None) -> str
                                          "sssbake": version("sssbake"), **({"picks": picks} if picks is not None else {})})
 
 
+def dependencies_hold(dependencies, confinement: Confinement) -> bool:
+    """Whether each (path, SHA-256) pair of `dependencies` (`Scene.dependencies`) still holds.
+
+    A report or a shared cache entry names the files, so neither is trusted: a file that is
+    missing, unreadable, not a regular file or outside `confinement` does not hold (and is not read).
+    A digest ``""`` (missing when read) holds while nothing is at that path.
+    """
+    for file, digest in dependencies:
+        try:
+            if not digest:
+                if os.path.lexists(file):
+                    return False
+            elif file_digest(confinement.check(file, f"dependency '{file}'")) != digest:
+                return False
+        except (AssetError, OSError, TypeError, ValueError):  # TypeError, ValueError: a garbled report's path
+            return False
+    return True
+
+
+def report_dependencies_hold(report: dict, path: Path, options: BakeOptions) -> bool:
+    """Whether the files the bake of `report` read besides the asset at `path` (its
+    ``dependencies``, path -> SHA-256) are unchanged; a report without them does not hold."""
+    recorded = report.get("dependencies")
+    return isinstance(recorded, dict) and dependencies_hold(recorded.items(),
+                                                            Confinement.for_asset(path, options.allow_roots))
+
+
 def bake_asset(
     path: Path, options: BakeOptions, out_base: Path, cache: StageCache, *, trace_memory: bool = False,
     picks: dict[str, int] | None = None,
@@ -163,6 +192,10 @@ def bake_asset(
     `trace_memory` records each stage's peak traced allocation (slower; for benchmarks).
     `picks` (the budget check's, `plan_check`): per plan entry (`plan.PlanEntry.key`), the pilot's
     candidate to bake instead of the pilot's own choice.
+
+    The outputs are up to date when the old report's `job_key` matches and every file the asset
+    references (its ``dependencies``) still has its recorded digest; a cached scene is served
+    likewise only while its files do, and the stages after it are keyed on their digests too.
 
     Raises
     ------
@@ -181,14 +214,19 @@ def bake_asset(
             old = json.loads(outputs[2].read_text())
         except (OSError, ValueError):
             old = {}
-        if old.get("job_key") == key:
+        if old.get("job_key") == key and report_dependencies_hold(old, path, options):
             return BakeResult(old, outputs, up_to_date=True)
 
     runner = StageRunner(cache, trace_memory)
     warnings: list[str] = []
+    confinement = Confinement.for_asset(path, options.allow_roots)
     # The allowed roots are in the key: a scene read under a wider allowance must not serve a narrower one.
     scene, k_load = runner.run("load", STAGE_VERSIONS["load"], digest, {"allow_roots": list(options.allow_roots)},
-                               load_scene, str(path), options.allow_roots)
+                               load_scene, str(path), options.allow_roots,
+                               fresh=lambda cached: dependencies_hold(cached.dependencies, confinement))
+    dependencies = dict(scene.dependencies)
+    # The asset's digest alone does not name the scene: a changed buffer, texture or layer changes every later key.
+    k_load = stage_key(k_load, "dependencies", 0, dependencies)
     clean, k_clean = runner.run("clean", STAGE_VERSIONS["clean"], k_load, {}, clean_scene, scene)
     clean: CleanScene
     warnings.extend(scene.warnings)
@@ -432,6 +470,7 @@ def bake_asset(
         report = {
             "asset": str(path),
             "job_key": key,
+            "dependencies": dependencies,
             "schema_version": SCHEMA_VERSION,
             "sssbake": version("sssbake"),
             "outputs": [str(p) for p in outputs],

@@ -30,6 +30,7 @@ from urllib.parse import unquote, unquote_to_bytes, urlsplit
 import numpy as np
 import pygltflib
 
+from .cache import file_digest
 from .confine import Confinement
 from .load import AssetError
 from .scene import (TEXTURE_TRANSFORM, Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef,
@@ -80,6 +81,10 @@ QUANTIZED = {
     "POSITION": _INTEGERS, "NORMAL": _SNORM, "TANGENT": _SNORM, "TRANSLATION": _INTEGERS, "SCALE": _INTEGERS,
     "TEXCOORD": frozenset({(5120, False), (5120, True), (5121, False), (5122, False), (5122, True), (5123, False)}),
 }
+#: glTF 2.0 "Morph Targets": the position, normal and tangent displacements' types, and what
+#: KHR_mesh_quantization's "Extending Morph Target Attributes" adds.
+TARGET_SEMANTICS = {name: (("VEC3",), _FLOAT) for name in ("POSITION", "NORMAL", "TANGENT")}
+TARGET_QUANTIZED = {"POSITION": _SNORM | {(5120, False), (5122, False)}, "NORMAL": _SNORM, "TANGENT": _SNORM}
 INDEX_COMPONENTS = (5121, 5123, 5125)
 VERSION = re.compile(r"(\d+)\.(\d+)")
 IMAGE_SIGNATURES = ((b"\x89PNG", "image/png"), (b"\xff\xd8", "image/jpeg"), (b"RIFF", "image/webp"), (b"\xabKTX", "image/ktx2"))
@@ -94,6 +99,7 @@ class _Document:
     buffers: tuple[bytes | memoryview, ...]
     confinement: Confinement
     quantized: bool  # KHR_mesh_quantization is used: integer attribute types are allowed
+    read: list[tuple[str, str]]  # the external files read so far and their digests (`Scene.dependencies`)
 
 
 def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
@@ -136,8 +142,12 @@ def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
     for extension in gltf.extensionsRequired or ():
         if extension not in SUPPORTED_REQUIRED:
             raise AssetError(path, _unsupported(extension))
+        if extension not in (gltf.extensionsUsed or ()):
+            raise AssetError(path, f"{extension} is in extensionsRequired but not in extensionsUsed; glTF 2.0 lists "
+                                   "every required extension as used too")
     quantized = QUANTIZATION in (gltf.extensionsUsed or []) + (gltf.extensionsRequired or [])
-    doc = _Document(path, gltf, _load_buffers(path, gltf, blob, confinement), confinement, quantized)
+    files: list[tuple[str, str]] = []
+    doc = _Document(path, gltf, _load_buffers(path, gltf, blob, confinement, files), confinement, quantized, files)
     meshes, skipped = [], []
     skinned = {node.mesh for node in gltf.nodes if node.mesh is not None and node.skin is not None}
     for i, mesh in enumerate(gltf.meshes):
@@ -167,6 +177,7 @@ def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
         up_axis="Y",
         meters_per_unit=1.0,
         warnings=tuple(warnings),
+        dependencies=tuple(dict.fromkeys(files)),
     )
 
 
@@ -302,11 +313,13 @@ def _item(doc: _Document, items: list, index, what: str):
     return items[index]
 
 
-def _uri_bytes(path: str, uri, what: str, confinement: Confinement, limit: int) -> tuple[bytes, str | None]:
+def _uri_bytes(path: str, uri, what: str, confinement: Confinement, limit: int,
+               read: list[tuple[str, str]]) -> tuple[bytes, str | None]:
     """Bytes behind a data: URI or a file the URI names, and the data URI's media type.
 
     A relative reference is percent-decoded and taken from the asset's folder, a ``file:`` URI is its
     path; either must pass `confinement` before it is opened, and at most `limit` bytes of it are read.
+    A file's real path and digest are appended to `read`.
     Other schemes (http:, ...) are refused: a batch never fetches.
     """
     if not isinstance(uri, str):
@@ -336,13 +349,15 @@ def _uri_bytes(path: str, uri, what: str, confinement: Confinement, limit: int) 
     if not real.is_file():
         raise AssetError(path, f"{what}: missing file '{uri}'")
     with open(real, "rb") as f:
-        return f.read(limit), None
+        data = f.read(limit)
+    read.append((str(real), file_digest(real)))
+    return data, None
 
 
 def _load_buffers(path: str, gltf: pygltflib.GLTF2, blob: memoryview | None,
-                  confinement: Confinement) -> tuple[bytes | memoryview, ...]:
+                  confinement: Confinement, read: list[tuple[str, str]]) -> tuple[bytes | memoryview, ...]:
     """Each buffer's first ``byteLength`` bytes (a GLB BIN chunk may be padded past it; an external
-    file is read no further)."""
+    file is read no further, and its real path and digest appended to `read`)."""
     out = []
     for i, buf in enumerate(gltf.buffers):
         size = _whole(path, buf.byteLength, f"buffer {i} byteLength", least=1)
@@ -354,7 +369,7 @@ def _load_buffers(path: str, gltf: pygltflib.GLTF2, blob: memoryview | None,
                 raise AssetError(path, f"buffer {i} has no uri and the file has no GLB binary chunk")
             data = blob
         else:
-            data, _ = _uri_bytes(path, buf.uri, f"buffer {i}", confinement, size)
+            data, _ = _uri_bytes(path, buf.uri, f"buffer {i}", confinement, size, read)
         if len(data) < size:
             raise AssetError(path, f"truncated buffer {i}: {len(data)} bytes, byteLength says {size}")
         out.append(data if len(data) == size else memoryview(data)[:size])
@@ -410,7 +425,7 @@ def _accessor(doc: _Document, index, what: str) -> tuple[np.ndarray, pygltflib.A
     width = TYPE_SIZES.get(acc.type)
     if dtype is None or width is None:
         raise AssetError(doc.path, f"{name} has unknown componentType {acc.componentType} or type {acc.type!r}")
-    count = _whole(doc.path, acc.count, f"{name} count")
+    count = _whole(doc.path, acc.count, f"{name} count", least=1)
     if acc.normalized and acc.componentType in (5125, 5126):
         raise AssetError(doc.path, f"{name} is a normalized {COMPONENT_NAMES[acc.componentType]}; glTF 2.0 "
                                    "normalizes only 8- and 16-bit integers")
@@ -430,6 +445,8 @@ def _accessor(doc: _Document, index, what: str) -> tuple[np.ndarray, pygltflib.A
         n = _whole(doc.path, sparse.count, f"{name} sparse count", least=1)
         if n > count:
             raise AssetError(doc.path, f"{name}: sparse count {n} exceeds the accessor's count {count}")
+        _unstrided(doc, sparse.indices.bufferView, f"{name}: sparse indices")
+        _unstrided(doc, sparse.values.bufferView, f"{name}: sparse values")
         where = _strided(doc, sparse.indices.bufferView, sparse.indices.byteOffset, index_dtype, n, "SCALAR", name)
         where = where.ravel().astype(np.int64)
         if (np.diff(where) <= 0).any():
@@ -450,21 +467,23 @@ def _floats(values: np.ndarray, normalized: bool) -> np.ndarray:
     return np.maximum(out, -1.0) if values.dtype.kind == "i" else out
 
 
-def _check_semantic(doc: _Document, acc: pygltflib.Accessor, index, name: str, where: str) -> None:
+def _check_semantic(doc: _Document, acc: pygltflib.Accessor, index, name: str, where: str,
+                    table: dict = SEMANTICS, quantized: dict = QUANTIZED) -> None:
     """Refuse an accessor whose type, componentType or normalized flag glTF 2.0 does not allow for
-    attribute `name` (`SEMANTICS`, widened by `QUANTIZED` when the file uses KHR_mesh_quantization).
+    attribute `name` (`table`, widened by `quantized` when the file uses KHR_mesh_quantization; a morph
+    target's are `TARGET_SEMANTICS` and `TARGET_QUANTIZED`).
     Application-specific attributes (``_FOO``) are not checked."""
     semantic = name.rsplit("_", 1)[0] if name[-1:].isdigit() else name
-    if semantic not in SEMANTICS:
+    if semantic not in table:
         return
-    types, components = SEMANTICS[semantic]
+    types, components = table[semantic]
     if doc.quantized:
-        components = components | QUANTIZED.get(semantic, frozenset())
+        components = components | quantized.get(semantic, frozenset())
     if acc.type not in types:
         raise AssetError(doc.path, f"{where}: {name} accessor {index} has type {acc.type}, expected {' or '.join(types)}")
     if (acc.componentType, bool(acc.normalized)) not in components:
         allowed = ", ".join(_component_name(*c) for c in sorted(components, key=lambda c: (c[0] != 5126, c)))
-        hint = "" if doc.quantized or semantic not in QUANTIZED else f" ({QUANTIZATION} allows more)"
+        hint = "" if doc.quantized or semantic not in quantized else f" ({QUANTIZATION} allows more)"
         raise AssetError(doc.path, f"{where}: {name} accessor {index} is "
                                    f"{_component_name(acc.componentType, bool(acc.normalized))}; glTF 2.0 allows "
                                    f"{allowed}{hint}")
@@ -512,6 +531,7 @@ def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primiti
     # Attributes sssbake does not read (JOINTS_n, WEIGHTS_n, ...) must still be what the spec allows.
     for name, index in attrs.items():
         _check_semantic(doc, _item(doc, doc.gltf.accessors, index, "accessor"), index, name, where)
+    _check_targets(doc, prim, _item(doc, doc.gltf.accessors, attrs["POSITION"], "accessor").count, where)
     draco = _draco(doc, prim, attrs, where)
 
     def read(name: str, count: int | None) -> np.ndarray:
@@ -552,7 +572,11 @@ def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primiti
 
 def _indices(doc: _Document, index, where: str) -> np.ndarray:
     """int64 index list of a primitive's indices accessor: SCALAR, an unsigned integer type, not
-    normalized, and free of the primitive-restart value (the type's maximum), as glTF 2.0 requires."""
+    normalized, in a buffer view without byteStride, and free of the primitive-restart value (the type's
+    maximum), as glTF 2.0 requires."""
+    view = _item(doc, doc.gltf.accessors, index, "accessor").bufferView
+    if view is not None:
+        _unstrided(doc, view, f"{where}: indices accessor {index}")
     values, acc = _accessor(doc, index, f"{where} indices")
     if acc.type != "SCALAR":
         raise AssetError(doc.path, f"{where}: indices accessor {index} has type {acc.type}, expected SCALAR")
@@ -565,6 +589,29 @@ def _indices(doc: _Document, index, where: str) -> np.ndarray:
         raise AssetError(doc.path, f"{where}: indices accessor {index} holds {restart}, the primitive-restart value "
                                    f"of {COMPONENT_NAMES[acc.componentType]}, which glTF 2.0 forbids")
     return values.ravel().astype(np.int64)
+
+
+def _unstrided(doc: _Document, view_index, what: str) -> None:
+    """Refuse a byteStride on a buffer view of index data (glTF 2.0: only vertex attributes have one)."""
+    stride = _item(doc, doc.gltf.bufferViews, view_index, "buffer view").byteStride
+    if stride is not None:
+        raise AssetError(doc.path, f"{what} uses buffer view {view_index}, which has byteStride {stride!r}; glTF 2.0 "
+                                   "allows byteStride only on vertex attribute data")
+
+
+def _check_targets(doc: _Document, prim: pygltflib.Primitive, count, where: str) -> None:
+    """Refuse a morph target whose attribute is not an object of accessors of the kind glTF 2.0 allows
+    (`TARGET_SEMANTICS`) or whose count differs from the primitive's POSITION `count`. sssbake does not
+    read the displacements; a file breaking these rules is still not glTF."""
+    for t, target in enumerate(prim.targets or ()):
+        if not isinstance(target, dict):
+            raise AssetError(doc.path, f"{where}: morph target {t} is {target!r}, not an object")
+        for name, index in target.items():
+            acc = _item(doc, doc.gltf.accessors, index, "accessor")
+            _check_semantic(doc, acc, index, name, f"{where} target {t}", TARGET_SEMANTICS, TARGET_QUANTIZED)
+            if acc.count != count:
+                raise AssetError(doc.path, f"{where} target {t}: {name} accessor {index} has count {acc.count!r} "
+                                           f"but POSITION has {count!r}")
 
 
 def _draco(doc: _Document, prim: pygltflib.Primitive, attrs: dict, where: str) -> dict[str, np.ndarray]:
@@ -801,7 +848,7 @@ def _image(doc: _Document, im: pygltflib.Image, i: int) -> Image:
     if im.bufferView is not None:
         data = bytes(_view(doc, im.bufferView)[0])
     elif im.uri:
-        data, uri_mime = _uri_bytes(doc.path, im.uri, f"image {i}", doc.confinement, MAX_IMAGE_BYTES + 1)
+        data, uri_mime = _uri_bytes(doc.path, im.uri, f"image {i}", doc.confinement, MAX_IMAGE_BYTES + 1, doc.read)
     else:
         raise AssetError(doc.path, f"image {i} has neither a uri nor a bufferView")
     if len(data) > MAX_IMAGE_BYTES:

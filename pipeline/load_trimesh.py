@@ -10,21 +10,25 @@ from __future__ import annotations
 import io
 import os
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
+import PIL.Image
 import trimesh
 
+from .cache import file_digest
 from .confine import Confinement
 from .load import AssetError
 from .scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef
 
-PLY_TYPE_SIZES = {
-    "char": 1, "uchar": 1, "int8": 1, "uint8": 1,
-    "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
-    "int": 4, "uint": 4, "int32": 4, "uint32": 4,
-    "float": 4, "float32": 4, "double": 8, "float64": 8,
+PLY_TYPES = {  # PLY property type → numpy type
+    "char": "i1", "uchar": "u1", "int8": "i1", "uint8": "u1",
+    "short": "i2", "ushort": "u2", "int16": "i2", "uint16": "u2",
+    "int": "i4", "uint": "u4", "int32": "i4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
+PLY_BYTE_ORDERS = {"binary_little_endian": "<", "binary_big_endian": ">"}
 PLY_FACE_LISTS = ("vertex_indices", "vertex_index")
 
 
@@ -114,6 +118,7 @@ def load_trimesh(path: str, confinement: Confinement | None = None) -> Scene:
         images=tuple(images),
         up_axis="Y",
         meters_per_unit=None,
+        dependencies=tuple(dict.fromkeys(resolver.read)),
     )
 
 
@@ -133,6 +138,7 @@ class _ConfinedResolver(trimesh.resolvers.FilePathResolver):
         self.mtllib = mtllib
         self.folders = tuple(dict.fromkeys([self.parent, os.path.dirname(os.path.realpath(path))]))
         self.refused: AssetError | None = None
+        self.read: list[tuple[str, str]] = []  # the files read and their digests (`Scene.dependencies`)
 
     def get(self, name: str) -> bytes:
         name = name.strip()
@@ -145,7 +151,40 @@ class _ConfinedResolver(trimesh.resolvers.FilePathResolver):
         except AssetError as e:
             self.refused = self.refused or e
             raise
-        return real.read_bytes()  # a missing file raises FileNotFoundError: trimesh goes on without it
+        try:
+            data = real.read_bytes()
+        except FileNotFoundError:  # trimesh goes on without it; its appearing later changes the bake
+            self.read.append((str(real), ""))
+            raise
+        self.read.append((str(real), file_digest(real)))
+        if name != self.mtllib:
+            try:
+                _check_texture_pixels(self.confinement.asset, what, data)
+            except AssetError as e:
+                self.refused = self.refused or e
+                raise
+        return data
+
+
+def _check_texture_pixels(path: str, what: str, data: bytes) -> None:
+    """Refuse a texture whose header declares more pixels than PIL decodes without complaint
+    (``PIL.Image.MAX_IMAGE_PIXELS``, 89 M by default): trimesh decodes it in full, and a small file
+    of 100000 × 100000 pixels is a decompression bomb. Only the header is read here; bytes PIL cannot
+    identify are left to trimesh, which goes on without them."""
+    limit = PIL.Image.MAX_IMAGE_PIXELS
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", PIL.Image.DecompressionBombWarning)
+        try:
+            with PIL.Image.open(io.BytesIO(data)) as image:
+                width, height = image.size
+        except PIL.Image.DecompressionBombError as e:  # over twice the limit: PIL gives no size, only its count
+            raise AssetError(path, f"{what} is over the {limit / 1e6:.0f} M pixel limit of "
+                                   f"PIL.Image.MAX_IMAGE_PIXELS ({e})") from None
+        except (PIL.UnidentifiedImageError, OSError, ValueError):
+            return
+    if any(issubclass(w.category, PIL.Image.DecompressionBombWarning) for w in caught):
+        raise AssetError(path, f"{what} is {width} × {height} pixels, over the {limit / 1e6:.0f} M pixel limit "
+                               "of PIL.Image.MAX_IMAGE_PIXELS")
 
 
 def _obj_mtllib(data: bytes) -> str:
@@ -296,14 +335,16 @@ def _obj_short_vertex(data: bytes) -> str | None:
 
 
 def _check_ply(path: str, data: bytes) -> None:
-    """Compare a PLY's header with the size of its data; raise `AssetError` when data is missing."""
+    """Check a PLY's face lists, then compare its header with the size of its data; raise `AssetError`
+    naming the first problem (a face of fewer than 3 vertices, a face index that is not a whole number
+    of the list's type, missing data)."""
     end = data.find(b"end_header")
     if not data.startswith(b"ply") or end < 0:
         raise AssetError(path, "not a PLY file: no 'ply ... end_header' header")
     body_start = data.find(b"\n", end)
     body = data[body_start + 1 :] if body_start >= 0 else b""
     fmt = None
-    elements: list[list] = []  # [name, count, fixed bytes, minimum values] per element
+    elements: list[list] = []  # [name, count, [(property, list count type or None, value type), ...]]
     for line in data[:end].decode("ascii", "replace").splitlines():
         words = line.split()
         if not words:
@@ -311,31 +352,176 @@ def _check_ply(path: str, data: bytes) -> None:
         if words[0] == "format" and len(words) > 1:
             fmt = words[1]
         elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
-            elements.append([words[1], int(words[2]), 0, 0])
+            elements.append([words[1], int(words[2]), []])
         elif words[0] == "property" and elements and len(words) >= 3:
-            element = elements[-1]
             if words[1] == "list" and len(words) == 5:
-                items = 3 if words[4] in PLY_FACE_LISTS else 0
-                element[2] += PLY_TYPE_SIZES.get(words[2], 0) + items * PLY_TYPE_SIZES.get(words[3], 0)
-                element[3] += 1 + items
+                elements[-1][2].append((words[4], words[2], words[3]))
             else:
-                element[2] += PLY_TYPE_SIZES.get(words[1], 0)
-                element[3] += 1
+                elements[-1][2].append((words[2], None, words[1]))
     if fmt is None:
         raise AssetError(path, "corrupt PLY header: no 'format' line")
-    declared = ", ".join(f"{count} '{name}'" for name, count, _, _ in elements) + " elements"
     if fmt == "ascii":
-        values, needed = len(body.split()), sum(count * minimum for _, count, _, minimum in elements)
+        _check_ply_ascii_faces(path, elements, body, data[:body_start + 1].count(b"\n"))
+    elif fmt in PLY_BYTE_ORDERS:
+        _check_ply_binary_faces(path, elements, body, PLY_BYTE_ORDERS[fmt])
+
+    def least(props: list, unit) -> int:
+        # a face list holds at least 3 items; other lists may be empty
+        return sum(unit(kind) if counted is None else unit(counted) + (3 * unit(kind) if name in PLY_FACE_LISTS else 0)
+                   for name, counted, kind in props)
+
+    declared = ", ".join(f"{count} '{name}'" for name, count, _ in elements) + " elements"
+    if fmt == "ascii":
+        values, needed = len(body.split()), sum(count * least(props, lambda kind: 1) for _, count, props in elements)
         if values < needed:
             raise AssetError(
                 path, f"truncated file: header declares {declared}; the data ends after {values} of at least {needed} values"
             )
     else:
-        needed = sum(count * fixed for _, count, fixed, _ in elements)
+        size = lambda kind: np.dtype(PLY_TYPES[kind]).itemsize if kind in PLY_TYPES else 0  # noqa: E731
+        needed = sum(count * least(props, size) for _, count, props in elements)
         if len(body) < needed:
             raise AssetError(
                 path, f"truncated file: header declares {declared}; the data ends after {len(body)} of at least {needed} bytes"
             )
+
+
+def _face_layout(elements: list) -> tuple[int, list, int] | None:
+    """Where the face lists are: (index of the 'face' element, its properties, the position of its
+    vertex-index list among them), or None when the file has no such list, the list is not the
+    element's only list, or a property's type is unknown (trimesh refuses those itself)."""
+    for e, (name, _, props) in enumerate(elements):
+        lists = [i for i, (prop, counted, _) in enumerate(props) if counted is not None]
+        if name == "face" and lists and props[lists[0]][0] in PLY_FACE_LISTS:
+            known = all(kind in PLY_TYPES and (counted is None or counted in PLY_TYPES) for _, counted, kind in props)
+            return (e, props, lists[0]) if len(lists) == 1 and known else None
+    return None
+
+
+def _check_face_lists(path: str, lengths: np.ndarray, where) -> None:
+    """Refuse the first face whose list holds fewer than 3 vertices; `where(k)` names face k."""
+    short = np.flatnonzero(lengths < 3)
+    if len(short):
+        k = int(short[0])
+        raise AssetError(path, f"{where(k)} has {int(lengths[k])} vertices; a face needs at least 3")
+
+
+def _check_face_indices(path: str, values: np.ndarray, kind: str, shown, face_of, where,
+                        what: str = "face index") -> None:
+    """Refuse the first face index that is not a whole number or does not fit the list's value type
+    (trimesh's cast would turn NaN or 1e30 into -2147483648).
+
+    Parameters
+    ----------
+    values : (n,) float64
+        The face indices as read.
+    kind : str
+        The list's PLY value type.
+    shown : callable
+        Position in `values` → the value as the file writes it.
+    face_of : callable
+        Positions (k,) int64 → the faces (k,) int64 they belong to; `where(face)` names a face.
+    what : str
+        What the values are, for the message.
+    """
+    whole = np.isfinite(values) & (np.floor(values) == values)
+    bad = np.flatnonzero(~whole)
+    if len(bad):
+        i = int(bad[0])
+        raise AssetError(path, f"{what} {shown(i)} on {where(int(face_of(bad[:1])[0]))} is not a whole number")
+    limits = np.iinfo(PLY_TYPES[kind]) if np.dtype(PLY_TYPES[kind]).kind in "iu" else np.iinfo(np.int64)
+    bad = np.flatnonzero((values < limits.min) | (values > limits.max))
+    if len(bad):
+        i = int(bad[0])
+        raise AssetError(path, f"{what} {shown(i)} on {where(int(face_of(bad[:1])[0]))} does not fit the "
+                               f"face list's {kind} type")
+
+
+def _check_ply_ascii_faces(path: str, elements: list, body: bytes, header_lines: int) -> None:
+    """Check an ASCII PLY's face lists, one face per line as trimesh reads them; vectorised over the
+    face lines' tokens. A line too short to hold its list is left to the truncation check."""
+    layout = _face_layout(elements)
+    if layout is None:
+        return
+    e, props, at = layout
+    first_line = sum(count for _, count, _ in elements[:e])
+    faces = elements[e][1]
+    text = np.frombuffer(body, np.uint8)
+    newlines = np.flatnonzero(text == ord("\n"))
+    if first_line > len(newlines) or not faces:
+        return
+    start = 0 if first_line == 0 else int(newlines[first_line - 1]) + 1
+    stop = int(newlines[first_line + faces - 1]) if first_line + faces - 1 < len(newlines) else len(body)
+    block = text[start:stop]
+    tokens = body[start:stop].split()
+    try:
+        numbers = np.array(tokens, dtype=np.float64)
+    except ValueError:
+        return  # a word that is no number: trimesh's parser refuses the file itself
+    # bytes.split's whitespace: a token starts where a non-space byte follows a space or the block's start
+    space = np.isin(block, np.frombuffer(b" \t\n\r\x0b\x0c", np.uint8))
+    starts = np.flatnonzero(~space & np.append(True, space[:-1]))
+    line_breaks = np.flatnonzero(block == ord("\n"))
+    per_line = np.bincount(np.searchsorted(line_breaks, starts), minlength=faces)[:faces]
+    first_token = np.cumsum(per_line) - per_line
+    if (per_line <= at).any():
+        return
+    lengths = numbers[first_token + at]
+    where = lambda k: f"face {k} (line {header_lines + first_line + k + 1})"  # noqa: E731
+    _check_face_indices(path, lengths, props[at][1], lambda i: repr(tokens[first_token[i] + at].decode()),
+                        lambda i: i, where, "vertex count")
+    lengths = lengths.astype(np.int64)
+    _check_face_lists(path, lengths, where)
+    if (lengths > per_line - at - 1).any():
+        return
+    face = np.repeat(np.arange(faces), lengths)
+    positions = first_token[face] + at + 1 + np.arange(len(face)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    _check_face_indices(path, numbers[positions], props[at][2], lambda i: repr(tokens[positions[i]].decode()),
+                        lambda i: face[i], where)
+
+
+def _check_ply_binary_faces(path: str, elements: list, body: bytes, order: str) -> None:
+    """Check a binary PLY's face lists as trimesh reads them: every list as long as the first one
+    (vectorised); the first face whose count differs is named."""
+    layout = _face_layout(elements)
+    if layout is None:
+        return
+    e, props, at = layout
+    dtype = lambda kind: np.dtype(PLY_TYPES[kind]).newbyteorder(order)  # noqa: E731
+    start = 0
+    for _, count, element_props in elements[:e]:
+        if any(counted is not None for _, counted, _ in element_props):
+            return  # lists before the faces: their lengths are trimesh's to read
+        start += count * sum(dtype(kind).itemsize for _, _, kind in element_props)
+    counted, kind = dtype(props[at][1]), dtype(props[at][2])
+    before = sum(dtype(k).itemsize for _, _, k in props[:at])
+    after = sum(dtype(k).itemsize for _, _, k in props[at + 1:])
+    text = np.frombuffer(body, np.uint8)
+    faces = elements[e][1]
+
+    def read(positions: np.ndarray, of: np.dtype) -> np.ndarray:
+        return text[positions[:, None] + np.arange(of.itemsize)].view(of).reshape(-1).astype(np.float64)
+
+    first = start + before
+    if not faces or first + counted.itemsize > len(body):
+        return
+    length = int(read(np.array([first]), counted)[0])
+    stride = before + counted.itemsize + max(length, 0) * kind.itemsize + after
+    fits = max(0, min(faces, (len(body) - first - counted.itemsize) // stride + 1))
+    lengths = read(first + stride * np.arange(fits), counted)
+    differs = np.flatnonzero(lengths != length)
+    where = lambda k: f"face {k}"  # noqa: E731
+    _check_face_lists(path, lengths[: differs[0] + 1 if len(differs) else fits].astype(np.int64), where)
+    if len(differs):
+        k = int(differs[0])
+        raise AssetError(path, f"face {k} has {int(lengths[k])} vertices and face 0 has {length}: a binary PLY's faces "
+                               "must all have one vertex count here (triangulate it)")
+    if kind.kind == "f":
+        whole = (len(body) - first - counted.itemsize - length * kind.itemsize) // stride + 1
+        items = np.arange(min(fits, max(whole, 0)) * length)
+        positions = first + counted.itemsize + stride * (items // length) + kind.itemsize * (items % length)
+        values = read(positions, kind)
+        _check_face_indices(path, values, props[at][2], lambda i: repr(float(values[i])), lambda i: i // length, where)
 
 
 def _check_stl(path: str, data: bytes) -> None:
@@ -348,8 +534,14 @@ def _check_stl(path: str, data: bytes) -> None:
     count = int(np.frombuffer(data, "<u4", 1, 80)[0]) if len(data) >= 84 else None
     if count is not None and 84 + 50 * count == len(data):
         return
-    # A binary STL's header may start with "solid" too, but its records hold NUL bytes.
-    if data.lstrip()[:5].lower() == b"solid" and b"\0" not in data:
+    # A binary STL's header may start with "solid" too, but its records hold NUL bytes and no keywords;
+    # a text file with a stray NUL is still text when it has them.
+    if data.lstrip()[:5].lower() == b"solid" and (b"\0" not in data or re.search(rb"\b(?:facet|endsolid)\b", data)):
+        nul = data.find(b"\0")
+        if nul >= 0:
+            line = data.count(b"\n", 0, nul) + 1
+            raise AssetError(path, f"ASCII STL holds a NUL byte on line {line}: "
+                                   "the text is damaged; re-export the file")
         if data.rfind(b"endsolid") < 0:
             raise AssetError(path, "truncated file: ASCII STL without 'endsolid'")
         return

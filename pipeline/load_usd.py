@@ -30,10 +30,12 @@ from __future__ import annotations
 import math
 import os
 import re
+from dataclasses import replace
 
 import numpy as np
 from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdShade, UsdSkel
 
+from .cache import file_digest
 from .confine import Confinement
 from .load import AssetError
 from .scene import Mesh, Node, Primitive, Scene, SourceMaterial
@@ -101,7 +103,8 @@ def load_usd(path: str | os.PathLike, confinement: Confinement | None = None) ->
         # A composition route the walk does not know; refuse rather than bake from it.
         raise AssetError(path, f"the stage composed layer {unchecked[0]}, which no sublayer, reference, payload "
                                "or value clip names; refused")
-    return _Reader(path, stage).scene()
+    read = dict.fromkeys(layer.realPath for layer in layers.values() if layer.realPath and layer.realPath != real)
+    return replace(_Reader(path, stage).scene(), dependencies=tuple((p, file_digest(p)) for p in read))
 
 
 class _LayerWalk:

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from ..exporters.atomic import atomic_path
-from .bake import BakeResult, bake_asset, job_key, json_default
+from .bake import BakeResult, bake_asset, job_key, json_default, report_dependencies_hold
 from .cache import StageCache, file_digest
 from .options import BakeOptions, TECHNIQUES
 from .plan_pilot import PILOT_SIZE
@@ -76,7 +76,8 @@ def bake_within_budget(path: Path, options: BakeOptions, out_base: Path, cache: 
             old = json.loads(report_path.read_text())
         except (OSError, ValueError):
             old = {}
-        if old.get("check", {}).get("key") == final and all(Path(p).exists() for p in old.get("outputs", [])):
+        if (old.get("check", {}).get("key") == final and all(Path(p).exists() for p in old.get("outputs", []))
+                and report_dependencies_hold(old, path, options)):
             return BakeResult(old, tuple(Path(p) for p in old["outputs"]), up_to_date=True)
 
     t = time.perf_counter()

@@ -194,6 +194,12 @@ class Scene:
     warnings : tuple of str
         What the reader went past without refusing (e.g. a GLB chunk of unknown type, which
         the glTF spec says to ignore), one line each, for the asset's report.
+    dependencies : tuple of (str, str)
+        (real path, SHA-256 of its bytes, `cache.file_digest`) of each file the reader read
+        besides `source` (glTF buffers and images, USD layers, OBJ material libraries and
+        textures, a PLY's texture), once each, in the order read: the outputs and the cached
+        scene are stale when one of them no longer has its digest. The digest is ``""`` for a
+        referenced file that was missing and gone without (an OBJ's texture): stale once it exists.
     """
 
     source: str
@@ -206,6 +212,7 @@ class Scene:
     up_axis: str = "Y"
     meters_per_unit: float | None = None
     warnings: tuple[str, ...] = ()
+    dependencies: tuple[tuple[str, str], ...] = ()
 
     def world_matrices(self) -> dict[int, np.ndarray]:
         """World transform (4, 4) of every node reachable from the roots."""

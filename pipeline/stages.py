@@ -61,14 +61,20 @@ class StageRunner:
             self.peak_traced_mb[rec.name] = max(self.peak_traced_mb.get(rec.name, 0.0), peak)
         self.peak_rss_mb[rec.name] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
-    def run(self, name: str, version: int, upstream: str, params: dict, fn, *args):
-        """Returns (result, key); `key` is the upstream key of the stages that consume the result."""
+    def run(self, name: str, version: int, upstream: str, params: dict, fn, *args, fresh=None):
+        """Returns (result, key); `key` is the upstream key of the stages that consume the result.
+
+        `fresh(value)`, when given, says whether a cached value still holds (it depends on more
+        than its key, e.g. on files the stage read); a stale one is recomputed and replaced.
+        """
         key = stage_key(upstream, name, version, params)
         rec = self.records.setdefault(name, StageRecord(name))
         with self._measure(rec):
             damaged = len(self.cache.corrupt)
             value = self.cache.get(key)
             rec.corrupt += len(self.cache.corrupt) - damaged
+            if value is not None and fresh is not None and not fresh(value):
+                value = None
             if value is None:
                 value = fn(*args)
                 self.cache.put(key, value)

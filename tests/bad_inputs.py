@@ -127,6 +127,18 @@ def write_bad_inputs(folder: Path) -> dict[str, str]:
             "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 9\n",
             "face index 9 out of range for 4 vertices",
         ),
+        "short_face.ply": (
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 2\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n"
+            "3 0 1 2\n2 1 3\n",
+            "face 1 (line 15) has 2 vertices; a face needs at least 3",
+        ),
+        "nan_face_index.ply": (
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 2\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n"
+            "3 0 1 2\n3 1 nan 2\n",
+            "face index 'nan' on face 1 (line 15) is not a whole number",
+        ),
         "truncated_ascii.stl": ("solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n", "endsolid"),
         "invalid_json.gltf": ('{"asset": {"version": "2.0"}, "meshes": [', "invalid JSON"),
         "missing_buffer.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, buffer_uri="missing.bin")), "missing file 'missing.bin'"),
@@ -176,6 +188,13 @@ def write_bad_inputs(folder: Path) -> dict[str, str]:
                                      "buffer 0 URI '/etc/passwd' resolves to /etc/passwd, outside the asset's folder"),
         "file_scheme_uri.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, buffer_uri="file:///etc/passwd")),
                                  "buffer 0 URI 'file:///etc/passwd' resolves to /etc/passwd"),
+        "index_stride.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("bufferViews/1/byteStride", 4))),
+                              "indices accessor 1 uses buffer view 1, which has byteStride 4"),
+        "required_not_used.gltf": (
+            json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("extensionsRequired", ["KHR_mesh_quantization"]))),
+            "KHR_mesh_quantization is in extensionsRequired but not in extensionsUsed"),
+        "zero_count.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("accessors/0/count", 0))),
+                            "POSITION (accessor 0) count is 0; glTF 2.0 requires a whole number >= 1"),
         "remote_uri.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, buffer_uri="https://example.com/a.bin")),
                             "URI 'https://example.com/a.bin' is not a file beside the asset"),
         "model.fbx": ("Kaydara FBX Binary", "unsupported file type '.fbx'"),
@@ -185,6 +204,8 @@ def write_bad_inputs(folder: Path) -> dict[str, str]:
         "truncated_binary.ply": (good_ply[:-20], "truncated file"),
         "truncated.stl": (good_stl[:-30], "truncated file: header declares 2 triangles"),
         "empty.stl": (b"", "empty file"),
+        "nul_in_ascii.stl": (b"solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0\0 0\nvertex 0 1 0\n"
+                             b"endloop\nendfacet\nendsolid t\n", "ASCII STL holds a NUL byte on line 5"),
         "undercounted.stl": (good_stl[:80] + struct.pack("<I", 1) + good_stl[84:],
                              "header declares 1 triangle (134 bytes) but the file holds 2 triangles"),
         "bad_magic.glb": (b"gLTF" + _glb(_gltf(TRIANGLE, TRIANGLE_FACES))[4:], "bad magic"),

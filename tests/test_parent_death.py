@@ -38,3 +38,11 @@ def test_a_grandchild_dies_with_its_killed_parent_only_when_it_asked(asks):
     finally:
         if psutil.pid_exists(grandchild):
             os.kill(grandchild, 9)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_child_whose_parent_died_before_it_asked_ends_at_once():
+    # the parent named is not this process's: as if it had died while the child was importing
+    code = "from sssbake.pipeline.parent_death import die_with_parent; die_with_parent(1); print('still here')"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == -9 and "still here" not in done.stdout
