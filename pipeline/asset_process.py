@@ -51,6 +51,8 @@ PRELOAD = ["sssbake.pipeline.batch", "sssbake.pipeline.bake", "sssbake.pipeline.
 # Output suffixes one bake writes (`bake.bake_asset`), for removing a killed child's temporaries.
 OUTPUT_SUFFIXES = (".glb", ".usdc", ".report.json", ".sss_normals.glb")
 _GIB = 1024.0**3
+# A child's private temporary folder: ``<tempdir>/sssbake-asset-<supervisor's pid>-<random>``.
+FOLDER_PREFIX = "sssbake-asset-"
 
 
 @dataclass(frozen=True)
@@ -111,6 +113,7 @@ def supervise(tasks: Sequence[Task], slots: int = 1, on_done: Callable[[int, dic
         One `batch.run_job` record per task, in the order of `tasks`; a child over a limit, or one
         that died, gives a failed record with a one-line error naming the asset.
     """
+    sweep_orphaned_folders()
     records: list[dict | None] = [None] * len(tasks)
     pending = iter(range(len(tasks)))
     running: dict[int, _Child] = {}  # slot -> child
@@ -140,7 +143,7 @@ class _Child:
 
     def __init__(self, index: int, task: Task, share: tuple[int, int]):
         self.index, self.task = index, task
-        self.tmp = Path(tempfile.mkdtemp(prefix="sssbake-asset-"))
+        self.tmp = Path(tempfile.mkdtemp(prefix=f"{FOLDER_PREFIX}{os.getpid()}-"))
         self.result = self.tmp / "record.json"
         self.t0 = time.monotonic()
         args = (task, str(self.tmp), *share)
@@ -213,6 +216,23 @@ class _Child:
         for name in names:
             if temporary_target(name) in ours:
                 (out_base.parent / name).unlink(missing_ok=True)
+
+
+def sweep_orphaned_folders() -> int:
+    """Remove the children's temporary folders whose supervisor is gone; returns how many.
+
+    A supervisor killed outright (a Dask worker killed under its asset, a batch SIGKILLed) cannot
+    remove its children's folders; the next supervisor on this machine does. A folder whose
+    supervisor's pid is alive, even if the pid was reused, is left alone.
+    """
+    removed = 0
+    root = Path(tempfile.gettempdir())
+    for folder in root.glob(f"{FOLDER_PREFIX}*-*"):
+        pid = folder.name[len(FOLDER_PREFIX):].split("-", 1)[0]
+        if pid.isdigit() and not psutil.pid_exists(int(pid)) and folder.is_dir() and not folder.is_symlink():
+            shutil.rmtree(folder, ignore_errors=True)
+            removed += 1
+    return removed
 
 
 def tree_rss(pid: int) -> int:

@@ -220,3 +220,21 @@ def test_isolate_false_bakes_in_this_process(tmp_path, monkeypatch):
     summary = run_batch([src], tmp_path / "out", BatchConfig({"scale_mm": 1.0}, (), ()), {}, cache_dir=None,
                         progress=False, isolate=False)
     assert summary["assets"][0]["error"] == f"{src / 'a.obj'}: patched in process {os.getpid()}"
+
+
+def test_folders_of_a_dead_supervisor_are_swept_and_a_live_ones_kept(private_tmp):
+    from sssbake.pipeline.asset_process import FOLDER_PREFIX, sweep_orphaned_folders, supervise
+
+    ended = multiprocessing.get_context("spawn").Process(target=time.sleep, args=(0,))
+    ended.start()
+    ended.join()  # a pid nothing holds now: a supervisor killed outright
+    dead = private_tmp / f"{FOLDER_PREFIX}{ended.pid}-abc123"
+    live = private_tmp / f"{FOLDER_PREFIX}{os.getpid()}-def456"
+    for folder in (dead, live):
+        (folder / "sssbake-atlas-x").mkdir(parents=True)
+        (folder / "record.json").write_text("{}")
+    lookalike = private_tmp / "sssbake-assets-not-ours"
+    lookalike.mkdir()
+    assert supervise([]) == []  # every supervisor sweeps first
+    assert not dead.exists() and live.exists() and lookalike.exists()
+    assert sweep_orphaned_folders() == 0
