@@ -34,6 +34,11 @@ def file_digest(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
+def bytes_digest(data: bytes | memoryview) -> str:
+    """SHA-256 of `data`: `file_digest` of a file holding them, without reading it again."""
+    return hashlib.sha256(data).hexdigest()
+
+
 def stage_key(upstream: str, stage: str, version: int, params: dict) -> str:
     """Key of a stage run: hash of upstream key, stage identity and its JSON-able parameters."""
     text = json.dumps([upstream, stage, version, params], sort_keys=True, default=str)

@@ -30,7 +30,7 @@ from urllib.parse import unquote, unquote_to_bytes, urlsplit
 import numpy as np
 import pygltflib
 
-from .cache import file_digest
+from .cache import bytes_digest, file_digest
 from .confine import Confinement
 from .load import AssetError
 from .scene import (TEXTURE_TRANSFORM, Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef,
@@ -350,7 +350,9 @@ def _uri_bytes(path: str, uri, what: str, confinement: Confinement, limit: int,
         raise AssetError(path, f"{what}: missing file '{uri}'")
     with open(real, "rb") as f:
         data = f.read(limit)
-    read.append((str(real), file_digest(real)))
+        whole = not f.read(1)
+    # A file read whole is hashed from memory; one longer than its limit is hashed from disk, in blocks.
+    read.append((str(real), bytes_digest(data) if whole else file_digest(real)))
     return data, None
 
 

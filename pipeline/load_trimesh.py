@@ -17,7 +17,7 @@ import numpy as np
 import PIL.Image
 import trimesh
 
-from .cache import file_digest
+from .cache import bytes_digest
 from .confine import Confinement
 from .load import AssetError
 from .scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef
@@ -156,7 +156,7 @@ class _ConfinedResolver(trimesh.resolvers.FilePathResolver):
         except FileNotFoundError:  # trimesh goes on without it; its appearing later changes the bake
             self.read.append((str(real), ""))
             raise
-        self.read.append((str(real), file_digest(real)))
+        self.read.append((str(real), bytes_digest(data)))
         if name != self.mtllib:
             try:
                 _check_texture_pixels(self.confinement.asset, what, data)
