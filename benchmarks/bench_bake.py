@@ -13,8 +13,8 @@ import json
 import tempfile
 from pathlib import Path
 
-from sssbake.pipeline.bake import bake_asset
-from sssbake.pipeline.cache import StageCache
+from sssbake.pipeline.bake.asset import bake_asset
+from sssbake.pipeline.bake.cache import StageCache
 from sssbake.pipeline.options import BAKE_DEFAULTS
 
 DEFAULT_ASSET = Path(__file__).resolve().parents[2] / "shared" / "assets" / "dragon" / "dragon.obj"

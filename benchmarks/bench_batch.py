@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from sssbake.pipeline.batch import run_batch
+from sssbake.pipeline.bake.batch import run_batch
 from sssbake.pipeline.config import load_config
 
 ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets"

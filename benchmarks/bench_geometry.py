@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from sssbake.pipeline.atlas import compute_atlas
-from sssbake.pipeline.simplify import simplify
-from sssbake.pipeline.texels import rasterize_atlas
-from sssbake.pipeline.thickness import bake_thickness
+from sssbake.pipeline.mesh.atlas import compute_atlas
+from sssbake.pipeline.mesh.simplify import simplify
+from sssbake.pipeline.mesh.texels import rasterize_atlas
+from sssbake.pipeline.mesh.thickness import bake_thickness
 
 DEFAULT_ASSET = Path("/work/shared/assets/dragon/dragon.obj")
 

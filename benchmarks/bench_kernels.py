@@ -25,17 +25,21 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_prt_precompute import with_mesh  # noqa: E402
 
-from sssbake.pipeline.atlas import compute_atlas  # noqa: E402
-from sssbake.pipeline.clean import clean_scene  # noqa: E402
-from sssbake.pipeline.fresnel import fresnel_transmittance  # noqa: E402
-from sssbake.pipeline.kernels_evaluate import texel_q  # noqa: E402
-from sssbake.pipeline.kernels_layout import kernels_bytes  # noqa: E402
-from sssbake.pipeline.kernels_precompute import BLENDS, KernelsOptions, precompute_kernels  # noqa: E402
-from sssbake.pipeline.load import load_scene  # noqa: E402
-from sssbake.pipeline.materials import preset  # noqa: E402
-from sssbake.pipeline.reference import Light, reference_scattering  # noqa: E402
-from sssbake.pipeline.simplify import simplify  # noqa: E402
-from sssbake.pipeline.visibility import direction_visibility  # noqa: E402
+from sssbake.pipeline.core.fresnel import fresnel_transmittance  # noqa: E402
+from sssbake.pipeline.core.materials import preset  # noqa: E402
+from sssbake.pipeline.core.reference import Light, reference_scattering  # noqa: E402
+from sssbake.pipeline.core.visibility import direction_visibility  # noqa: E402
+from sssbake.pipeline.mesh.atlas import compute_atlas  # noqa: E402
+from sssbake.pipeline.mesh.clean import clean_scene  # noqa: E402
+from sssbake.pipeline.mesh.load import load_scene  # noqa: E402
+from sssbake.pipeline.mesh.simplify import simplify  # noqa: E402
+from sssbake.pipeline.techniques.kernels.evaluate import texel_q  # noqa: E402
+from sssbake.pipeline.techniques.kernels.layout import kernels_bytes  # noqa: E402
+from sssbake.pipeline.techniques.kernels.precompute import (  # noqa: E402
+    BLENDS,
+    KernelsPrecomputeOptions,
+    precompute_kernels,
+)
 
 ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets"
 #: name -> (file, mm per unit, material, vertices to simplify to or None)
@@ -68,7 +72,8 @@ def run(name: str, resolution: int, threshold: float, accuracy: bool) -> str:
     reference = None
     for blend in BLENDS if accuracy else ("optimised",):
         t = time.perf_counter()
-        pre = precompute_kernels(surface, atlas, prims, mm, material, KernelsOptions(threshold=threshold, blend=blend))
+        options = KernelsPrecomputeOptions(threshold=threshold, blend=blend)
+        pre = precompute_kernels(surface, atlas, prims, mm, material, options)
         seconds = time.perf_counter() - t
         rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         if blend == "optimised":

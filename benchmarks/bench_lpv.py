@@ -26,9 +26,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "samples"))
 from generate import blob  # noqa: E402
 
-from sssbake.pipeline.lpv_tradeoff import lpv_tradeoff  # noqa: E402
-from sssbake.pipeline.marble_field import MarbleOptions  # noqa: E402
-from sssbake.pipeline.materials import preset  # noqa: E402
+from sssbake.pipeline.core.materials import preset  # noqa: E402
+from sssbake.pipeline.techniques.lpv.marble_field import MarbleOptions  # noqa: E402
+from sssbake.pipeline.techniques.lpv.tradeoff import lpv_tradeoff  # noqa: E402
 
 ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets"
 DRAGON = ASSETS / "dragon" / "dragon.obj"

@@ -19,9 +19,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from sssbake.pipeline.batch import run_batch
+from sssbake.pipeline.bake.batch import run_batch
 from sssbake.pipeline.config import load_config
-from sssbake.pipeline.verify import BYTES_PER_VERTEX
+from sssbake.pipeline.techniques.registry import technique as registered
 
 HERE = Path(__file__).resolve().parent
 
@@ -62,7 +62,7 @@ def main() -> None:
             picks = technique or "none" if pilot is None else f"{short(pilot['chosen'])} -> {short(pilot['pick'])}"
             figures = kept.get(technique, {}) if technique else {}
             blocks = list(report.get(technique, {}).values()) if technique else []
-            per_vertex = BYTES_PER_VERTEX[technique](blocks[0]) if blocks else 0.0
+            per_vertex = registered(technique).bytes_per_vertex(blocks[0]) if blocks else 0.0
             rmse = figures.get("rmse_image")
             verdict = ("unchecked" if "skipped" in figures else "-") if rmse is None else (
                 "within" if rmse <= args.budget else "over")
@@ -70,7 +70,7 @@ def main() -> None:
                   f"{check.get('seconds', record['seconds']):>5.0f} {'-' if rmse is None else f'{rmse:.4f}':>7} {verdict:>9} "
                   f"{len(check.get('attempts', []))}")
     if args.report:
-        from sssbake.pipeline.html_report import write_report
+        from sssbake.pipeline.verify.html_report import write_report
 
         print(f"report in {write_report(out, summary)}")
 

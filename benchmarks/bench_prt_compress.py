@@ -29,17 +29,17 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-
 from bench_prt_precompute import with_mesh  # this folder is on the path when run as a script
-from sssbake.pipeline.clean import clean_scene
-from sssbake.pipeline.directions import direction_set, interpolation_weights
-from sssbake.pipeline.load import load_scene
-from sssbake.pipeline.materials import preset
-from sssbake.pipeline.prt_compress import PRT_COMPRESS_DEFAULTS, PrtCompressOptions, compress_prt
-from sssbake.pipeline.prt_decode import bytes_per_vertex, decode_at_directions, evaluate
-from sssbake.pipeline.prt_precompute import precompute_prt
-from sssbake.pipeline.render import Renderer, fit_camera
-from sssbake.pipeline.tradeoff import image_exposure, lit_images, worst_rmse
+
+from sssbake.pipeline.core.directions import direction_set, interpolation_weights
+from sssbake.pipeline.core.materials import preset
+from sssbake.pipeline.mesh.clean import clean_scene
+from sssbake.pipeline.mesh.load import load_scene
+from sssbake.pipeline.render.renderer import Renderer, fit_camera
+from sssbake.pipeline.render.sweep import image_exposure, lit_images, worst_rmse
+from sssbake.pipeline.techniques.prt.compress import PRT_COMPRESS_DEFAULTS, PrtCompressOptions, compress_prt
+from sssbake.pipeline.techniques.prt.decode import bytes_per_vertex, decode_at_directions, evaluate
+from sssbake.pipeline.techniques.prt.precompute import precompute_prt
 
 ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets"
 #: name -> (file, mm per unit, Loop subdivisions before the precompute).

@@ -12,23 +12,23 @@ surface; scale 10 mm per unit makes it ~14 cm long), marble. Skips when they are
 from __future__ import annotations
 
 import argparse
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 import resource
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
+from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sssbake.pipeline.clean import clean_scene
-from sssbake.pipeline.directions import direction_set
-from sssbake.pipeline.load import load_scene
-from sssbake.pipeline.materials import preset
-from sssbake.pipeline.prt_precompute import precompute_prt
-from sssbake.pipeline.scene import Mesh, Primitive, Scene
-from sssbake.pipeline.simplify import simplify
+from sssbake.pipeline.core.directions import direction_set
+from sssbake.pipeline.core.materials import preset
+from sssbake.pipeline.mesh.clean import clean_scene
+from sssbake.pipeline.mesh.load import load_scene
+from sssbake.pipeline.mesh.scene import Mesh, Primitive, Scene
+from sssbake.pipeline.mesh.simplify import simplify
+from sssbake.pipeline.techniques.prt.precompute import precompute_prt
 
 DRAGON = Path(__file__).resolve().parents[2] / "shared" / "assets" / "dragon"
 SCALE_MM = 10.0

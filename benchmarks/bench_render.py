@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sssbake.pipeline.directions import direction_set
-from sssbake.pipeline.prt_data import PrtData
-from sssbake.pipeline.render import Renderer, RenderLight, fit_camera
+from sssbake.pipeline.core.directions import direction_set
+from sssbake.pipeline.render.renderer import Renderer, RenderLight, fit_camera
+from sssbake.pipeline.techniques.prt.data import PrtData
 
 DRAGON = Path(__file__).resolve().parents[2] / "shared" / "assets" / "dragon" / "dragon_subdiv1.ply"
 LIGHT = (0.4, 0.8, 0.45)
@@ -35,8 +35,8 @@ def mesh(path: Path | None) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
 
         s = trimesh.creation.icosphere(subdivisions=7)
         return "icosphere(7)", np.asarray(s.vertices), np.asarray(s.vertices), np.asarray(s.faces)
-    from sssbake.pipeline.clean import clean_scene
-    from sssbake.pipeline.load import load_scene
+    from sssbake.pipeline.mesh.clean import clean_scene
+    from sssbake.pipeline.mesh.load import load_scene
 
     s = clean_scene(load_scene(str(path))).surfaces[0]
     return path.name, s.positions, s.normals, s.faces

@@ -25,8 +25,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_spectral import ASSETS, MESHES  # noqa: E402
 
-from sssbake.pipeline.materials import preset  # noqa: E402
-from sssbake.pipeline.screen_tradeoff import screen_tradeoff  # noqa: E402
+from sssbake.pipeline.core.materials import preset  # noqa: E402
+from sssbake.pipeline.techniques.screen.tradeoff import screen_tradeoff  # noqa: E402
 
 
 def main() -> None:

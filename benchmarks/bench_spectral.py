@@ -34,12 +34,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_prt_precompute import with_mesh  # noqa: E402
 
-from sssbake.pipeline.clean import clean_scene  # noqa: E402
-from sssbake.pipeline.load import load_scene  # noqa: E402
-from sssbake.pipeline.materials import preset  # noqa: E402
-from sssbake.pipeline.simplify import simplify  # noqa: E402
-from sssbake.pipeline.spectral_precompute import SpectralOptions, precompute_spectral  # noqa: E402
-from sssbake.pipeline.spectral_tradeoff import spectral_tradeoff  # noqa: E402
+from sssbake.pipeline.core.materials import preset  # noqa: E402
+from sssbake.pipeline.mesh.clean import clean_scene  # noqa: E402
+from sssbake.pipeline.mesh.load import load_scene  # noqa: E402
+from sssbake.pipeline.mesh.simplify import simplify  # noqa: E402
+from sssbake.pipeline.techniques.spectral.precompute import SpectralPrecomputeOptions, precompute_spectral  # noqa: E402
+from sssbake.pipeline.techniques.spectral.tradeoff import spectral_tradeoff  # noqa: E402
 
 ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets"
 #: name -> (file, mm per unit, material, vertices to simplify to or None)
@@ -66,7 +66,7 @@ def timed(name: str, eigenpairs: int) -> tuple[str, int, float]:
         scene = with_mesh(scene, simple.positions, simple.faces)
     surface = clean_scene(scene).surfaces[0]
     t = time.perf_counter()
-    pre = precompute_spectral(surface, mm, preset(material_name), SpectralOptions(eigenpairs=eigenpairs))
+    pre = precompute_spectral(surface, mm, preset(material_name), SpectralPrecomputeOptions(eigenpairs=eigenpairs))
     total = time.perf_counter() - t
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     steps = ", ".join(f"{k} {v:.1f} s" for k, v in pre.seconds.items())

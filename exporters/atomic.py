@@ -65,7 +65,7 @@ def temporary_target(name: str) -> str | None:
     Recognises the temporary files `atomic_path` names (``.<final>.<random>.tmp<suffix>``, the
     random part mkstemp's 8 characters) and the one USD's save writes on its way to such a name
     (``.<final>.<random>.tmp.<6 characters>``); nothing else, so that a sweep of stale temporaries
-    (`sssbake.pipeline.batch`) never touches another program's files.
+    (`sssbake.pipeline.bake.batch`) never touches another program's files.
 
     Parameters
     ----------

@@ -28,16 +28,16 @@ from pathlib import Path
 import numpy as np
 import pygltflib as g
 
-from ..pipeline.baked import (
+from sssbake.exporters.atomic import atomic_path
+from sssbake.exporters.finite import check_finite, finite_number
+from sssbake.pipeline.mesh.baked import (
     SCHEMA_VERSION,
     BakedAsset,
     ScatteringMaterial,
     VertexAttribute,
     check_material_references,
 )
-from ..pipeline.scene import TEXTURE_TRANSFORM, SourceMaterial, TextureRef
-from .atomic import atomic_path
-from .finite import check_finite, finite_number
+from sssbake.pipeline.mesh.scene import TEXTURE_TRANSFORM, SourceMaterial, TextureRef
 
 FLOAT, BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT, UNSIGNED_INT = 5126, 5120, 5121, 5122, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963

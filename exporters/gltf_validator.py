@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 
+from sssbake.pipeline.core.errors import SssbakeError
+
 ENV_VAR = "SSSBAKE_GLTF_VALIDATOR"
 _SCRIPT = Path(__file__).with_name("gltf_validate.mjs")
 SEVERITIES = ("Error", "Warning", "Information", "Hint")
@@ -25,7 +27,7 @@ _INSTALL = "install it with `npm install gltf-validator` in the repository (or s
     " to a node_modules folder that holds it)"
 
 
-class ValidatorUnavailable(RuntimeError):
+class ValidatorUnavailable(SssbakeError, RuntimeError):
     """node or the gltf-validator package is missing."""
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pygltflib as g
 
-from .gltf import COMPONENT_DTYPES, COMPONENT_NAMES, TYPE_SIZES
+from sssbake.exporters.gltf import COMPONENT_DTYPES, COMPONENT_NAMES, TYPE_SIZES
 
 
 def inspect_glb(path: str | os.PathLike) -> dict:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Usd, UsdGeom, UsdShade
 
-from .usd import SSS
+from sssbake.exporters.usd import SSS
 
 _PRIMVAR_PREFIX = "primvars:" + SSS
 

@@ -43,17 +43,17 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
-from ..pipeline.baked import (
+from sssbake.exporters.atomic import atomic_path
+from sssbake.exporters.finite import check_finite, finite_number
+from sssbake.exporters.gltf import generator
+from sssbake.pipeline.mesh.baked import (
     SCHEMA_VERSION,
     BakedAsset,
     ScatteringMaterial,
     VertexAttribute,
     check_material_references,
 )
-from ..pipeline.scene import Primitive, SourceMaterial
-from .atomic import atomic_path
-from .finite import check_finite, finite_number
-from .gltf import generator
+from sssbake.pipeline.mesh.scene import Primitive, SourceMaterial
 
 #: Prefix of every sssbake attribute and primvar namespace.
 SSS = "sss:"

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pxr import Tf, Usd, UsdGeom, UsdValidation
 
-from ..pipeline.load_usd import usd_error_message
+from sssbake.pipeline.mesh.load_usd import usd_error_message
 
 MESH_CHECKER = "sssbake:MeshChecker"
 

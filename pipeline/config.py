@@ -23,11 +23,14 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from .options import BAKE_DEFAULTS, BakeOptions, check_options
+from sssbake.pipeline.core.errors import SssbakeError
+from sssbake.pipeline.options import BAKE_DEFAULTS, BakeOptions, check_options
 
 
-class ConfigError(ValueError):
+class ConfigError(SssbakeError, ValueError):
     """The config file is unreadable or holds an unknown or impossible setting."""
+
+    exit_code = 2
 
 
 @dataclass(frozen=True)

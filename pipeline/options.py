@@ -1,27 +1,22 @@
-"""Bake options: one dataclass and its defaults, read by both the API and the CLI."""
+"""Bake options: one dataclass and its defaults, read by both the API and the CLI.
+
+`BakeOptions` holds the general options, written out here, and every registered technique's
+options (`registry.TECHNIQUES`, each its ``options_type``) flattened as ``<technique>_<field>``:
+those are the TOML keys and, with dashes, the ``bake`` flags. A technique registered before this
+module is first imported gets its fields, flags and checks without a change here.
+"""
 
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import Field, asdict, dataclass, field, fields, make_dataclass, replace
 
-from .kernels_layout import KERNEL_BITS
-from .kernels_precompute import KERNELS_DEFAULTS, KernelsOptions
-from .lpv_grid import LPV_GRID_DEFAULTS, LpvGridOptions
-from .lpv_propagate import MAX_STEPS
-from .lpv_stage import FIELDS as LPV_FIELDS
-from .marble_field import MARBLE_DEFAULTS, MarbleOptions
-from .prt_compress import MODES, PRT_COMPRESS_DEFAULTS, TABLES, WEIGHT_BITS, WEIGHTS, PrtCompressOptions
-from .scatter_operator import SCATTER_DEFAULTS
-from .screen_samples import SCREEN_DEFAULTS, ScreenOptions
-from .sh import MAX_ORDER
-from .spectral_precompute import SPECTRAL_DEFAULTS, SpectralOptions
+from sssbake.pipeline.mesh.atlas import RESOLUTION
+from sssbake.pipeline.techniques import registry
 
 OPAQUE = "opaque"
 #: Techniques `bake` can run.
-TECHNIQUES = ("prt", "kernels", "spectral", "screen", "lpv")
-#: Step counts the lpv rendering's scale is tabulated for by default (the runtime may use 1..this).
-LPV_MAX_STEPS = 64
+TECHNIQUES = registry.NAMES
 #: Per-asset limits (`asset_process`), sized for the 800k-vertex dragon (dragon_subdiv2.ply, skin2 at
 #: 10 mm, default techniques: screen) on 2 shared cores: 430 s and 1.79 GiB peak resident memory of
 #: the batch's process tree (the atlas 405 s of it). A prt bake of it (K = 200 took 64 s and 4.6 GB at
@@ -33,8 +28,30 @@ ASSET_MEMORY_GIB = 16.0
 SUPERVISION = ("asset_timeout_s", "asset_memory_gib")
 
 
+# The general fields come in two groups, before and after the techniques', in the order
+# `to_json` has always written them.
 @dataclass(frozen=True)
-class BakeOptions:
+class _General:
+    material: str | dict = "marble"
+    scale_mm: float | None = None
+    materials: tuple[tuple[str, str | dict], ...] = ()
+    atlas_resolution: int = RESOLUTION
+    atlas_padding: int = 4
+    thickness_rays: int = 1
+    validate: bool = True
+    techniques: tuple[str, ...] = ("auto",)
+
+
+@dataclass(frozen=True)
+class _Limits:
+    max_bytes_per_vertex: float | None = None
+    budget_rmse: float | None = None
+    allow_roots: tuple[str, ...] = ()
+    asset_timeout_s: float = ASSET_TIMEOUT_S
+    asset_memory_gib: float = ASSET_MEMORY_GIB
+
+
+class _BakeOptions:
     """Per-asset settings.
 
     Attributes
@@ -60,41 +77,16 @@ class BakeOptions:
         Subsurface techniques to bake besides the standard fallback (see `TECHNIQUES`);
         ``("auto",)`` (the default): the planner (`plan.decide`) chooses per mesh and material;
         ``()`` (``"none"`` in a flag or config): the fallback only.
-    prt_directions : int
-        prt: light directions K.
-    prt_energy_dropped : float
-        prt: fraction of R_d the gather radius may drop.
-    prt_mode, prt_reference_fraction, prt_sh_order, prt_weights, prt_tables, prt_refine, prt_weight_bits,
-    prt_byte_budget, prt_reference_floor, prt_detail_order
-        prt compression (see `prt_compress.PrtCompressOptions`).
-    kernels_size, kernels_threshold, kernels_blend, kernels_seams, kernels_global_vertices
-        kernels precompute (see `kernels_precompute.KernelsOptions`).
-    kernels_bits : int
-        kernels: bits per stored kernel weight (8 or 16).
-    spectral_eigenpairs, spectral_width_mm, spectral_alpha, spectral_radius_mm
-        spectral precompute (see `spectral_precompute.SpectralOptions`).
-    spectral_variant : bool
-        spectral: also write ``<stem>.sss_normals.glb``, whose standard NORMAL is the spectral
-        subsurface normal (a stock viewer shows the effect).
-    spectral_basis : bool
-        spectral: also export the spectrum (coefficients, eigenvalues, residual, basis) so that a
-        runtime can filter again.
-    screen_samples, screen_uniform, screen_table_error
-        screen precompute (see `screen_samples.ScreenOptions`): importance-sampled and uniform
-        offsets, bound on the Rd table's relative interpolation error.
-    lpv_resolution, lpv_padding, lpv_supersample
-        lpv grid (see `lpv_grid.LpvGridOptions`): cells along the longest side, empty cells
-        around, occupancy samples per cell side.
-    lpv_field : str
-        lpv medium: ``"homogeneous"`` (the material everywhere) or ``"marble"`` (veins through it,
-        `marble_field`).
-    lpv_vein_mm : float
-        lpv marble: spacing of the veins, mm.
-    lpv_max_steps : int
-        lpv: the rendering's scale is tabulated for 1 .. this many propagation steps.
+    <technique>_<field>
+        Each registered technique's options (``techniques/<technique>/options.py``), e.g.
+        ``prt_directions``; `technique_options` gives them as the technique's dataclass.
     max_bytes_per_vertex : float or None
         ``--techniques auto``: the most bytes per vertex the planner may spend (a prt it chooses
         gets it as its ``prt_byte_budget``).
+    budget_rmse : float or None
+        The image RMSE (`verify.verify_file`'s ``rmse_image``) each baked technique should stay
+        under: the bake checks it on the full asset (`plan_check`), and with ``--techniques auto``
+        a pilot chooses the parameters (`plan_pilot`) and the check moves them when it fails.
     allow_roots : tuple of str
         Folders besides each asset's own that the files it references (glTF buffers and images,
         USD layers and textures, OBJ material libraries) may lie in (`confine.Confinement`).
@@ -104,82 +96,12 @@ class BakeOptions:
     asset_memory_gib : float
         GiB of resident memory the asset's worker and its children may hold together before they
         are killed and the asset fails; 0: no limit.
-    budget_rmse : float or None
-        The image RMSE (`verify.verify_file`'s ``rmse_image``) each baked technique should stay
-        under: the bake checks it on the full asset (`plan_check`), and with ``--techniques auto``
-        a pilot chooses the parameters (`plan_pilot`) and the check moves them when it fails.
     """
 
-    material: str | dict = "marble"
-    scale_mm: float | None = None
-    materials: tuple[tuple[str, str | dict], ...] = ()
-    atlas_resolution: int = 512
-    atlas_padding: int = 4
-    thickness_rays: int = 1
-    validate: bool = True
-    techniques: tuple[str, ...] = ("auto",)
-    prt_directions: int = 200
-    prt_energy_dropped: float = SCATTER_DEFAULTS.energy_dropped
-    prt_mode: str = PRT_COMPRESS_DEFAULTS.mode
-    prt_reference_fraction: float = PRT_COMPRESS_DEFAULTS.reference_fraction
-    prt_sh_order: int = PRT_COMPRESS_DEFAULTS.sh_order
-    prt_weights: str = PRT_COMPRESS_DEFAULTS.weights
-    prt_tables: str = PRT_COMPRESS_DEFAULTS.tables
-    prt_refine: float = PRT_COMPRESS_DEFAULTS.refine
-    prt_weight_bits: int = PRT_COMPRESS_DEFAULTS.weight_bits
-    prt_byte_budget: float | None = PRT_COMPRESS_DEFAULTS.byte_budget
-    prt_reference_floor: int = PRT_COMPRESS_DEFAULTS.reference_floor
-    prt_detail_order: int = PRT_COMPRESS_DEFAULTS.detail_order
-    kernels_size: int = KERNELS_DEFAULTS.kernel_size
-    kernels_threshold: float = KERNELS_DEFAULTS.threshold
-    kernels_blend: str = KERNELS_DEFAULTS.blend
-    kernels_seams: str = KERNELS_DEFAULTS.seams
-    kernels_global_vertices: int = KERNELS_DEFAULTS.global_vertices
-    # 8-bit codes: the hand's image RMSE is 0.0074747 against 0.0074749 with 16, in 27 % less file
-    kernels_bits: int = 8
-    spectral_eigenpairs: int = SPECTRAL_DEFAULTS.eigenpairs
-    spectral_width_mm: float | None = SPECTRAL_DEFAULTS.width_mm
-    spectral_alpha: float = SPECTRAL_DEFAULTS.alpha
-    spectral_radius_mm: float | None = SPECTRAL_DEFAULTS.radius_mm
-    spectral_variant: bool = False
-    spectral_basis: bool = False
-    screen_samples: int = SCREEN_DEFAULTS.samples
-    screen_uniform: int = SCREEN_DEFAULTS.uniform
-    screen_table_error: float = SCREEN_DEFAULTS.table_error
-    lpv_resolution: int = LPV_GRID_DEFAULTS.resolution
-    lpv_padding: int = LPV_GRID_DEFAULTS.padding
-    lpv_supersample: int = LPV_GRID_DEFAULTS.supersample
-    lpv_field: str = "homogeneous"
-    lpv_vein_mm: float = MARBLE_DEFAULTS.vein_mm
-    lpv_max_steps: int = LPV_MAX_STEPS
-    max_bytes_per_vertex: float | None = None
-    budget_rmse: float | None = None
-    allow_roots: tuple[str, ...] = ()
-    asset_timeout_s: float = ASSET_TIMEOUT_S
-    asset_memory_gib: float = ASSET_MEMORY_GIB
-
-    def prt_compress(self) -> PrtCompressOptions:
-        return PrtCompressOptions(self.prt_mode, self.prt_reference_fraction, self.prt_sh_order, self.prt_weights,
-                                  tables=self.prt_tables, refine=self.prt_refine, weight_bits=self.prt_weight_bits,
-                                  byte_budget=self.prt_byte_budget, reference_floor=self.prt_reference_floor,
-                                  detail_order=self.prt_detail_order)
-
-    def kernels(self) -> KernelsOptions:
-        return KernelsOptions(self.kernels_size, self.kernels_threshold, self.kernels_blend, self.kernels_seams,
-                              global_vertices=self.kernels_global_vertices)
-
-    def spectral(self) -> SpectralOptions:
-        return SpectralOptions(self.spectral_eigenpairs, self.spectral_width_mm, self.spectral_alpha,
-                               self.spectral_radius_mm)
-
-    def screen(self) -> ScreenOptions:
-        return ScreenOptions(self.screen_samples, self.screen_uniform, self.screen_table_error)
-
-    def lpv_grid(self) -> LpvGridOptions:
-        return LpvGridOptions(self.lpv_resolution, self.lpv_padding, self.lpv_supersample)
-
-    def lpv_marble(self) -> MarbleOptions:
-        return MarbleOptions(vein_mm=self.lpv_vein_mm)
+    def technique_options(self, name: str):
+        """The options of the technique called `name`, as its ``options_type`` dataclass."""
+        options_type = registry.technique(name).options_type
+        return options_type(**{f.name: getattr(self, f"{name}_{f.name}") for f in fields(options_type)})
 
     def to_json(self) -> dict:
         """The options that shape the outputs (all but `SUPERVISION`), as JSON values."""
@@ -198,6 +120,21 @@ class BakeOptions:
         return replace(self, **overrides)
 
 
+def _copied(f: Field, name: str, **metadata) -> tuple[str, str, Field]:
+    """`f` as a `make_dataclass` field called `name`, its metadata extended by `metadata`."""
+    return name, f.type, field(default=f.default, metadata={**f.metadata, **metadata})
+
+
+BakeOptions = make_dataclass(
+    "BakeOptions",
+    [*(_copied(f, f.name) for f in fields(_General)),
+     *(_copied(f, f"{t.name}_{f.name}", technique=t.name, option=f.name)
+       for t in registry.TECHNIQUES for f in fields(t.options_type)),
+     *(_copied(f, f.name) for f in fields(_Limits))],
+    bases=(_BakeOptions,), frozen=True,
+    # pickled into batch workers: found by module and name
+    namespace={"__module__": __name__, "__doc__": _BakeOptions.__doc__},
+)
 BAKE_DEFAULTS = BakeOptions()
 
 
@@ -248,42 +185,12 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"unknown technique(s) {unknown}; available: {list(TECHNIQUES)}, auto or none")
     if "auto" in o.techniques and len(o.techniques) > 1:
         raise ValueError("techniques: auto plans every technique itself; give it alone")
-    if not (4 <= o.prt_directions <= 4096):
-        raise ValueError(f"prt_directions must be in [4, 4096], got {o.prt_directions}")
-    if not (0.0 < o.prt_energy_dropped < 0.5):
-        raise ValueError(f"prt_energy_dropped must be in (0, 0.5), got {o.prt_energy_dropped}")
-    if o.prt_mode not in MODES or o.prt_weights not in WEIGHTS:
-        raise ValueError(f"prt_mode must be one of {list(MODES)} and prt_weights one of {list(WEIGHTS)}, "
-                         f"got {o.prt_mode!r}, {o.prt_weights!r}")
-    if o.prt_tables not in TABLES:
-        raise ValueError(f"prt_tables must be one of {list(TABLES)}, got {o.prt_tables!r}")
-    if o.prt_weight_bits not in WEIGHT_BITS:
-        raise ValueError(f"prt_weight_bits must be one of {list(WEIGHT_BITS)}, got {o.prt_weight_bits!r}")
-    if o.prt_byte_budget is not None and not o.prt_byte_budget > 0:
-        raise ValueError(f"prt_byte_budget must be a positive number of bytes per vertex, got {o.prt_byte_budget!r}")
-    if not o.prt_reference_floor >= 0:
-        raise ValueError(f"prt_reference_floor must be a whole number >= 0, got {o.prt_reference_floor!r}")
-    if not (0 <= o.prt_detail_order <= MAX_ORDER):
-        raise ValueError(f"prt_detail_order must be a whole number in [0, {MAX_ORDER}], got {o.prt_detail_order!r}")
-    if not (0.0 <= o.prt_refine < 1.0):
-        raise ValueError(f"prt_refine must be in [0, 1), got {o.prt_refine}")
-    if not (0.0 < o.prt_reference_fraction <= 1.0):
-        raise ValueError(f"prt_reference_fraction must be in (0, 1], got {o.prt_reference_fraction}")
-    o.kernels().check()
-    if o.kernels_bits not in KERNEL_BITS:
-        raise ValueError(f"kernels_bits must be one of {list(KERNEL_BITS)}, got {o.kernels_bits!r}")
-    o.spectral().check()
-    o.screen().check()
-    o.lpv_grid().check()
-    o.lpv_marble().check()
-    if o.lpv_field not in LPV_FIELDS:
-        raise ValueError(f"lpv_field must be one of {list(LPV_FIELDS)}, got {o.lpv_field!r}")
+    for t in registry.TECHNIQUES:
+        o.technique_options(t.name).check()
     if o.max_bytes_per_vertex is not None and not o.max_bytes_per_vertex > 0:
         raise ValueError(f"max_bytes_per_vertex must be a positive number, got {o.max_bytes_per_vertex!r}")
     if o.budget_rmse is not None and not (0 < o.budget_rmse < 1):
         raise ValueError(f"budget_rmse must be an image RMSE in (0, 1), got {o.budget_rmse!r}")
-    if not (1 <= o.lpv_max_steps <= MAX_STEPS):
-        raise ValueError(f"lpv_max_steps must be a whole number in [1, {MAX_STEPS}], got {o.lpv_max_steps!r}")
     for name in SUPERVISION:
         if not (0 <= getattr(o, name) < float("inf")):
             raise ValueError(f"{name} must be a finite number >= 0 (0: no limit), got {getattr(o, name)!r}")
@@ -295,8 +202,3 @@ def check_options(o: BakeOptions) -> None:
     for name in ("spectral_variant", "spectral_basis"):
         if getattr(o, name) and "spectral" not in o.techniques:
             raise ValueError(f"{name} needs the spectral technique (--techniques spectral)")
-    if o.prt_mode == "sh" and o.prt_sh_order < 1:
-        raise ValueError("prt_mode 'sh' needs prt_sh_order >= 1 (it has no reference points)")
-    if not (0 <= o.prt_sh_order <= MAX_ORDER) or o.prt_directions < o.prt_sh_order**2:
-        raise ValueError(f"prt_sh_order must be in [0, {MAX_ORDER}] with prt_directions >= order², "
-                         f"got {o.prt_sh_order}")

@@ -19,8 +19,8 @@ import numpy as np
 import trimesh
 
 from sssbake.exporters.gltf import write_glb
-from sssbake.pipeline.baked import BakedAsset
-from sssbake.pipeline.scene import Mesh, Node, Primitive, Scene, SourceMaterial
+from sssbake.pipeline.mesh.baked import BakedAsset
+from sssbake.pipeline.mesh.scene import Mesh, Node, Primitive, Scene, SourceMaterial
 
 CONFIG = """\
 # Batch config for the bundled samples: `sssbake bake samples/ -o out/ --config samples/sssbake.toml`

@@ -149,7 +149,7 @@ def write_bad_inputs(folder: Path) -> dict[str, str]:
         "negative_index.gltf": (json.dumps(_gltf(TRIANGLE, -TRIANGLE_FACES - 1, signed_indices=True)),
                                 "indices accessor 1 is SHORT; glTF 2.0 allows UNSIGNED_BYTE, UNSIGNED_SHORT or UNSIGNED_INT"),
         "points_only.gltf": (json.dumps(_gltf(TRIANGLE, TRIANGLE_FACES, mode=0)), "no triangles"),
-        # glTF 2.0 rules (pipeline/load_gltf.py) and confinement of URIs (pipeline/confine.py)
+        # glTF 2.0 rules (pipeline/mesh/load_gltf.py) and confinement of URIs (pipeline/mesh/confine.py)
         "version_1.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("asset/version", "1.0"))),
                            "asset.version is '1.0'; only glTF 2.x is read"),
         "min_version_2_1.gltf": (json.dumps(_set(_gltf(TRIANGLE, TRIANGLE_FACES), ("asset/minVersion", "2.1"))),

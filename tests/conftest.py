@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from sssbake.pipeline.clean import area_weighted_normals
-from sssbake.pipeline.directions import direction_set
+from sssbake.pipeline.core.directions import direction_set
+from sssbake.pipeline.core.surface import area_weighted_normals
 
 
 @pytest.fixture(scope="module")

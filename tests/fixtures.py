@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sssbake.pipeline.baked import Fallback
+from sssbake.pipeline.mesh.baked import Fallback
 
 # A plausible marble-like fallback with distinct values in every field, so a field swapped on export shows.
 FALLBACK = Fallback(
@@ -37,7 +37,7 @@ def random_kernels(rng, n: int = 40, width: int = 24, height: int = 20, kernel_s
                    per_row: int = 6, borders: int = 5, surface: int | None = None):
     """Valid `KernelsData` with random values (n global vertices, `surface` welded surface
     vertices (default n, mapped one to one), a `width` × `height` atlas)."""
-    from sssbake.pipeline.kernels_data import KernelsData
+    from sssbake.pipeline.techniques.kernels.data import KernelsData
 
     k2 = kernel_size * kernel_size
     chosen = rng.choice(width * height, texels + borders, replace=False).astype(np.int64)
@@ -82,8 +82,8 @@ def bake_screen_sphere(folder: Path, **overrides):
     """
     import trimesh
 
-    from sssbake.pipeline.bake import bake_asset
-    from sssbake.pipeline.cache import StageCache
+    from sssbake.pipeline.bake.asset import bake_asset
+    from sssbake.pipeline.bake.cache import StageCache
     from sssbake.pipeline.options import BakeOptions
 
     folder = Path(folder)

@@ -18,8 +18,8 @@ import numpy as np
 import trimesh
 
 from sssbake.exporters.gltf import to_glb
-from sssbake.pipeline.baked import BakedAsset
-from sssbake.pipeline.scene import Mesh, Node, Primitive, Scene, SourceMaterial
+from sssbake.pipeline.mesh.baked import BakedAsset
+from sssbake.pipeline.mesh.scene import Mesh, Node, Primitive, Scene, SourceMaterial
 
 #: Numbers that break readers which trust their input: overflow, NaN, signed zero, integer limits.
 SPECIAL_NUMBERS = ("1e308", "-1e308", "3.5e38", "nan", "-nan", "inf", "-inf", "-0", "0", "4294967295",

@@ -1,10 +1,10 @@
 """Flat test surfaces with hand-made atlases for the kernels technique (no xatlas run)."""
 
 import numpy as np
-
 from fixtures import plane
-from sssbake.pipeline.atlas import Atlas, AtlasPart
-from sssbake.pipeline.clean import Surface, vertex_areas
+
+from sssbake.pipeline.core.surface import Surface, vertex_areas
+from sssbake.pipeline.mesh.atlas import Atlas, AtlasPart
 
 UP = (0.0, 0.0, 1.0)
 

@@ -4,12 +4,11 @@ import json
 from pathlib import Path
 
 import pytest
+from bad_inputs import write_bad_inputs
+from generate import generate
 from pxr import Usd
 
 from sssbake.pipeline.cli import main
-
-from bad_inputs import write_bad_inputs
-from generate import generate
 
 
 @pytest.fixture(scope="module")
@@ -158,8 +157,8 @@ def test_parallel_jobs_match_serial(baked_samples, tmp_path):
 def test_prt_bake_writes_validated_readable_data(baked_samples, tmp_path):
     import numpy as np
 
-    from sssbake.exporters.read_prt import read_prt_glb, read_prt_usd
-    from sssbake.pipeline.prt_compress import decode_at_directions
+    from sssbake.pipeline.techniques.prt.compress import decode_at_directions
+    from sssbake.pipeline.techniques.prt.reader import read_prt_glb, read_prt_usd
 
     src, _, _ = baked_samples
     args = ["bake", str(src / "sphere.obj"), "-o", str(tmp_path), "--config", str(src / "sssbake.toml"),
@@ -193,10 +192,10 @@ def test_spectral_bake_writes_normals_variant_and_basis(baked_samples, tmp_path)
 
     from sssbake.exporters.gltf import dequantize, quantization_step, read_accessor, technique_tables
     from sssbake.exporters.gltf_validator import ValidatorUnavailable, find_validator
-    from sssbake.pipeline.clean import clean_scene
-    from sssbake.pipeline.load import load_scene
-    from sssbake.pipeline.materials import preset
-    from sssbake.pipeline.spectral_precompute import SpectralOptions, precompute_spectral
+    from sssbake.pipeline.core.materials import preset
+    from sssbake.pipeline.mesh.clean import clean_scene
+    from sssbake.pipeline.mesh.load import load_scene
+    from sssbake.pipeline.techniques.spectral.precompute import SpectralPrecomputeOptions, precompute_spectral
 
     src, _, _ = baked_samples
     args = ["bake", str(src / "sphere.obj"), "-o", str(tmp_path), "--config", str(src / "sssbake.toml"),
@@ -218,7 +217,7 @@ def test_spectral_bake_writes_normals_variant_and_basis(baked_samples, tmp_path)
 
     # the sample config: marble at 1 mm per unit
     surface = clean_scene(load_scene(str(src / "sphere.obj"))).surfaces[0]
-    pre = precompute_spectral(surface, 1.0, preset("marble"), SpectralOptions(eigenpairs=40))
+    pre = precompute_spectral(surface, 1.0, preset("marble"), SpectralPrecomputeOptions(eigenpairs=40))
     gltf = pygltflib.GLTF2.load(str(tmp_path / "sphere.glb"))
     attributes = gltf.meshes[0].primitives[0].attributes
     stored = dequantize(read_accessor(gltf, attributes._SSS_NORMAL), True)

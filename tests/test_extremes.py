@@ -9,18 +9,23 @@ import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sssbake.pipeline.clean import weld_surface
-from sssbake.pipeline.dipole import DipoleParams, diffuse_reflectance_profile, disc_integral, total_diffuse_reflectance
-from sssbake.pipeline.lpv_calibrate import render_scales
-from sssbake.pipeline.lpv_grid import LpvGridOptions, homogeneous, voxelise
-from sssbake.pipeline.lpv_propagate import transport_factors
-from sssbake.pipeline.materials import Material
-from sssbake.pipeline.naive_normals import naive_normals
-from sssbake.pipeline.scatter_operator import SCATTER_DEFAULTS, scatter_operator
-from sssbake.pipeline.scene import Primitive
-from sssbake.pipeline.screen_data import table_total
-from sssbake.pipeline.screen_samples import ScreenOptions, screen_samples
-from sssbake.pipeline.spectral_precompute import naive_parameters
+from sssbake.pipeline.core.dipole import (
+    DipoleParams,
+    diffuse_reflectance_profile,
+    disc_integral,
+    total_diffuse_reflectance,
+)
+from sssbake.pipeline.core.materials import Material
+from sssbake.pipeline.core.naive_normals import naive_normals
+from sssbake.pipeline.core.scatter_operator import SCATTER_DEFAULTS, scatter_operator
+from sssbake.pipeline.mesh.clean import weld_surface
+from sssbake.pipeline.mesh.scene import Primitive
+from sssbake.pipeline.techniques.lpv.calibrate import render_scales
+from sssbake.pipeline.techniques.lpv.grid import LpvGridOptions, homogeneous, voxelise
+from sssbake.pipeline.techniques.lpv.propagate import transport_factors
+from sssbake.pipeline.techniques.screen.data import table_total
+from sssbake.pipeline.techniques.screen.samples import ScreenSamplesOptions, screen_samples
+from sssbake.pipeline.techniques.spectral.precompute import naive_parameters
 
 #: Coefficients in 1/mm, log-uniform over eight decades of the valid range.
 coefficient = st.floats(-4.0, 3.0).map(lambda e: float(10.0**e))
@@ -56,7 +61,7 @@ def test_the_dipole_stays_finite_and_within_its_energy(material):
 @given(materials)
 def test_screen_tables_are_finite_and_hold_the_reflectance(material):
     try:
-        samples = screen_samples(material, ScreenOptions(samples=9, uniform=3, table_error=0.05))
+        samples = screen_samples(material, ScreenSamplesOptions(samples=9, uniform=3, table_error=0.05))
     except ValueError as error:
         # one table on r = R t² cannot span channels many decades apart (a channel without
         # absorption reaches metres, one that absorbs strongly lives within microns)

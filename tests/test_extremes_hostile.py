@@ -7,18 +7,17 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
-
-from sssbake.pipeline.dipole import total_diffuse_reflectance
-from sssbake.pipeline.fresnel import fresnel_transmittance
-from sssbake.pipeline.lpv_calibrate import render_scales
-from sssbake.pipeline.lpv_grid import LpvGridOptions, homogeneous, voxelise
-from sssbake.pipeline.lpv_inject import LOBE
-from sssbake.pipeline.lpv_layout import lpv_tables
-from sssbake.pipeline.lpv_matrices import DIRECTIONS, lpv_basis, propagation_matrices
-from sssbake.pipeline.lpv_propagate import DECAY_LIMIT, RENDER_WEIGHTS, transport_factors
-from sssbake.pipeline.materials import Material
-
 from test_extremes import small_ball
+
+from sssbake.pipeline.core.dipole import total_diffuse_reflectance
+from sssbake.pipeline.core.fresnel import fresnel_transmittance
+from sssbake.pipeline.core.materials import Material
+from sssbake.pipeline.techniques.lpv.calibrate import render_scales
+from sssbake.pipeline.techniques.lpv.grid import LpvGridOptions, homogeneous, voxelise
+from sssbake.pipeline.techniques.lpv.inject import LOBE
+from sssbake.pipeline.techniques.lpv.layout import lpv_tables
+from sssbake.pipeline.techniques.lpv.matrices import DIRECTIONS, lpv_basis, propagation_matrices
+from sssbake.pipeline.techniques.lpv.propagate import DECAY_LIMIT, RENDER_WEIGHTS, transport_factors
 
 DENSE = {"sigma_s_prime": [1.0, 1.0, 1.0], "sigma_a": [1e4, 1e4, 1e4], "eta": 1.3}
 
@@ -71,8 +70,8 @@ def test_lpv_attenuation_stops_falling_where_the_runtime_clamps_it():
 @pytest.mark.parametrize("overrides", [{"material": DENSE, "scale_mm": 1.0}, {"material": "marble", "scale_mm": 1e5}],
                          ids=["sigma_a=1e4", "scale_mm=1e5"])
 def test_a_bake_at_the_extremes_is_finite_and_quiet(tmp_path, technique, overrides):
-    from sssbake.pipeline.bake import bake_asset
-    from sssbake.pipeline.cache import StageCache
+    from sssbake.pipeline.bake.asset import bake_asset
+    from sssbake.pipeline.bake.cache import StageCache
     from sssbake.pipeline.options import BakeOptions
 
     trimesh.creation.icosphere(subdivisions=2, radius=5.0).export(tmp_path / "ball.obj")
@@ -93,8 +92,8 @@ def _obj(path, positions, faces):
 
 
 def _clean(path):
-    from sssbake.pipeline.clean import clean_scene
-    from sssbake.pipeline.load import load_scene
+    from sssbake.pipeline.mesh.clean import clean_scene
+    from sssbake.pipeline.mesh.load import load_scene
 
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
@@ -102,7 +101,7 @@ def _clean(path):
 
 
 def test_coordinates_beyond_float32_are_named_not_called_degenerate(tmp_path):
-    from sssbake.pipeline.load import AssetError
+    from sssbake.pipeline.core.errors import AssetError
 
     tetra = trimesh.creation.icosphere(subdivisions=0)
     path = _obj(tmp_path / "huge.obj", np.asarray(tetra.vertices) * 1e308, tetra.faces)
@@ -118,7 +117,7 @@ def test_coordinates_beyond_float32_are_named_not_called_degenerate(tmp_path):
 
 
 def test_a_few_outlier_vertices_are_named_not_called_degenerate(tmp_path):
-    from sssbake.pipeline.load import AssetError
+    from sssbake.pipeline.core.errors import AssetError
 
     ball = trimesh.creation.icosphere(subdivisions=3, radius=1.0)  # 642 vertices
     positions = np.asarray(ball.vertices).copy()
@@ -133,8 +132,8 @@ def test_a_few_outlier_vertices_are_named_not_called_degenerate(tmp_path):
 
 
 def test_a_tiny_sphere_bakes_its_atlas(tmp_path):
-    from sssbake.pipeline.bake import bake_asset
-    from sssbake.pipeline.cache import StageCache
+    from sssbake.pipeline.bake.asset import bake_asset
+    from sssbake.pipeline.bake.cache import StageCache
     from sssbake.pipeline.options import BakeOptions
 
     # 1e-8 file units across, 10 mm at scale_mm = 1e9: xatlas once gave it a 0 x 0 atlas

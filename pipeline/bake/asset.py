@@ -1,0 +1,585 @@
+"""Bakes one asset: load → clean → assign materials → atlas → thickness → techniques → export → validate.
+
+Only the stages a scene needs run: a scene whose materials are all opaque gets no atlas and no
+thickness. The techniques come from `registry.TECHNIQUES`: mesh-scope ones per mesh, on its
+welded surface (and atlas), material-scope ones per scattering material after the meshes.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from importlib.metadata import version
+from pathlib import Path
+
+import numpy as np
+from PIL import Image as PILImage
+
+from sssbake.exporters.atomic import atomic_path
+from sssbake.exporters.gltf import write_glb
+from sssbake.exporters.usd import write_usdc
+from sssbake.pipeline.bake.cache import StageCache, stage_key
+from sssbake.pipeline.bake.fallback import make_fallback
+from sssbake.pipeline.bake.stages import (
+    AtlasParams,
+    LoadParams,
+    PilotParams,
+    StageRunner,
+    TechniqueParams,
+    ThicknessMapParams,
+    ThicknessParams,
+    atlas_stage,
+    load_stage,
+    pilot_stage,
+    technique_stage,
+    thickness_map_stage,
+    thickness_stage,
+)
+from sssbake.pipeline.core.errors import AssetError
+from sssbake.pipeline.core.materials import Material
+from sssbake.pipeline.core.surface import Surface
+from sssbake.pipeline.mesh.atlas import Atlas
+from sssbake.pipeline.mesh.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
+from sssbake.pipeline.mesh.clean import CleanScene, clean_scene
+from sssbake.pipeline.mesh.confine import Confinement
+from sssbake.pipeline.mesh.digest import file_digest
+from sssbake.pipeline.mesh.scale import instance_scale, resolve_scale_mm
+from sssbake.pipeline.mesh.scene import Image, Mesh, Scene, Texture, TextureRef
+from sssbake.pipeline.mesh.thickness import ThicknessResult
+from sssbake.pipeline.mesh.thickness_map import ThicknessMap
+from sssbake.pipeline.options import BakeOptions
+from sssbake.pipeline.planning.assign import Assignment, assign_materials
+from sssbake.pipeline.planning.plan import PlanEntry, decide, with_pilot
+from sssbake.pipeline.techniques.registry import TECHNIQUES
+from sssbake.pipeline.techniques.technique import MATERIAL, MESH, TechniqueBake
+
+# Bump a stage's version when its output for the same input changes (a technique's: its `stage_version`).
+STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 3, "thickness": 1, "thickness_map": 1,
+                  **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 3}
+
+LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
+
+
+@dataclass(frozen=True)
+class BakeResult:
+    """What `bake_asset` produced: the report (also written next to the outputs) and the paths."""
+
+    report: dict
+    outputs: tuple[Path, ...]
+    up_to_date: bool = False
+
+
+def _size_report(name: str, diag_mm: float, material: Material, warnings: list[str]) -> dict:
+    mfp = diag_mm / material.mean_free_path_mm
+    diff = diag_mm * material.sigma_tr
+    if mfp.min() < 1.0:
+        warnings.append(
+            f"mesh {name!r} with {material.name!r} spans only {mfp.min():.3g} mean free paths: "
+            "the diffusion model does not hold; is scale_mm right?"
+        )
+    if diff.min() > 1e4:
+        warnings.append(
+            f"mesh {name!r} with {material.name!r} spans {diff.min():.3g} diffusion lengths: "
+            "scattering will be invisible; is scale_mm right?"
+        )
+    return {
+        "material": material.name,
+        "bbox_diagonal_mm": diag_mm,
+        "size_in_mean_free_paths": mfp.tolist(),
+        "size_in_diffusion_lengths": diff.tolist(),
+    }
+
+
+def _split_shared_materials(scene: Scene, translucent: set[int]) -> tuple[Scene, list[int]]:
+    """Give every mesh its own copy of each scattering material it uses.
+
+    A material's thickness texture lives in its mesh's atlas, so two meshes cannot share one.
+    Returns the new scene and, per material, the index of the material it copies.
+    """
+    materials = list(scene.materials)
+    origin = list(range(len(materials)))
+    owner: dict[int, int] = {}
+    meshes = []
+    for mi, mesh in enumerate(scene.meshes):
+        local: dict[int, int] = {}
+        prims = []
+        for p in mesh.primitives:
+            m = p.material
+            if m in translucent:
+                if owner.setdefault(m, mi) != mi:
+                    if m not in local:
+                        local[m] = len(materials)
+                        origin.append(m)
+                        materials.append(replace(scene.materials[m], name=f"{scene.materials[m].name}.{mesh.name}"))
+                    m = local[m]
+            prims.append(replace(p, material=m) if m != p.material else p)
+        meshes.append(Mesh(mesh.name, tuple(prims), mesh.deforming))
+    return replace(scene, meshes=tuple(meshes), materials=tuple(materials)), origin
+
+
+def _one_material(technique: str, mesh: Mesh, mats: list[int], scene: Scene, warnings: list[str]) -> None:
+    """Warn that `technique` bakes a mesh of several scattering materials with the first one's."""
+    if len(mats) > 1:
+        warnings.append(f"mesh {mesh.name!r}: {technique} needs one scattering material per mesh, it has "
+                        f"{len(mats)}; baked with {scene.materials[mats[0]].name!r}'s")
+
+
+def _png_gray(values: np.ndarray) -> bytes:
+    """8-bit greyscale PNG of `values` in [0, 1] (H, W): G reads the grey level in every sampler."""
+    img = PILImage.fromarray(np.round(np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8), mode="L")
+    buf = io.BytesIO()
+    img.save(buf, format="PNG", optimize=True)
+    return buf.getvalue()
+
+
+def job_key(digest: str, options: BakeOptions, picks: dict | None = None) -> str:
+    """What a bake's outputs are up to date with: the file's `digest`, the options, the stage
+    versions, sssbake's version and, from the budget check, its `picks`."""
+    return stage_key(digest, "bake", 1, {"options": options.to_json(), "stages": STAGE_VERSIONS,
+                                         "sssbake": version("sssbake"), **({"picks": picks} if picks is not None else {})})
+
+
+def dependencies_hold(dependencies, confinement: Confinement) -> bool:
+    """Whether each (path, SHA-256) pair of `dependencies` (`Scene.dependencies`) still holds.
+
+    A report or a shared cache entry names the files, so neither is trusted: a file that is
+    missing, unreadable, not a regular file or outside `confinement` does not hold (and is not read).
+    A digest ``""`` (missing when read) holds while nothing is at that path.
+    """
+    for file, digest in dependencies:
+        try:
+            if not digest:
+                if os.path.lexists(file):
+                    return False
+            elif file_digest(confinement.check(file, f"dependency '{file}'")) != digest:
+                return False
+        except (AssetError, OSError, TypeError, ValueError):  # TypeError, ValueError: a garbled report's path
+            return False
+    return True
+
+
+def report_dependencies_hold(report: dict, path: Path, options: BakeOptions) -> bool:
+    """Whether the files the bake of `report` read besides the asset at `path` (its
+    ``dependencies``, path -> SHA-256) are unchanged; a report without them does not hold."""
+    recorded = report.get("dependencies")
+    return isinstance(recorded, dict) and dependencies_hold(recorded.items(),
+                                                            Confinement.for_asset(path, options.allow_roots))
+
+
+@dataclass(eq=False)
+class _Baking:
+    """What the bake of one asset gathers, mesh by mesh: the `BakedAsset`'s parts and the report's blocks."""
+
+    runner: StageRunner
+    options: BakeOptions
+    scene: Scene  # the materials split per mesh (`_split_shared_materials`)
+    material_of: dict[int, Material | None]  # per material of `scene`, its scattering material (None: opaque)
+    mm_per_unit: float
+    warnings: list[str]
+    meshes: list[Mesh] = field(init=False)
+    images: list[Image] = field(init=False)
+    textures: list[Texture] = field(init=False)
+    attributes: dict[tuple[int, int], tuple[VertexAttribute, ...]] = field(default_factory=dict)
+    scattering: dict[int, ScatteringMaterial] = field(default_factory=dict)
+    scale_mm: dict[int, float] = field(default_factory=dict)
+    mesh_extras: dict[int, dict] = field(default_factory=dict)
+    material_extras: dict[int, dict] = field(default_factory=dict)
+    sizes: dict[str, list] = field(default_factory=dict)
+    atlases: dict[str, dict] = field(default_factory=dict)
+    blocks: dict[str, dict] = field(default_factory=lambda: {t.name: {} for t in TECHNIQUES})  # report[t.name]
+    plan: list[PlanEntry] = field(default_factory=list)  # the planner's entries (--techniques auto)
+    material_options: dict[int, BakeOptions] = field(default_factory=dict)  # per material, its plan entry's
+    used: set[str] = field(default_factory=set)  # techniques some mesh or material ran
+
+    def __post_init__(self) -> None:
+        self.meshes, self.images, self.textures = (list(self.scene.meshes), list(self.scene.images),
+                                                   list(self.scene.textures))
+
+    @property
+    def auto(self) -> bool:
+        return "auto" in self.options.techniques
+
+
+@dataclass(frozen=True, eq=False)
+class _MeshStages:
+    """A scattering mesh's general stages: its atlas (and the atlas's key), thickness and thickness map."""
+
+    atlas: Atlas
+    atlas_key: str
+    thickness: ThicknessResult
+    thickness_map: ThicknessMap
+
+
+def bake_asset(
+    path: Path, options: BakeOptions, out_base: Path, cache: StageCache, *, trace_memory: bool = False,
+    picks: dict[str, int] | None = None,
+) -> BakeResult:
+    """Bake the asset at `path` into ``out_base.glb``, ``.usdc`` and ``.report.json`` (and
+    ``out_base.<name>.glb`` for each of the techniques' `Technique.extra_outputs`).
+
+    `trace_memory` records each stage's peak traced allocation (slower; for benchmarks).
+    `picks` (the budget check's, `plan_check`): per plan entry (`plan.PlanEntry.key`), the pilot's
+    candidate to bake instead of the pilot's own choice.
+
+    The outputs are up to date when the old report's `job_key` matches and every file the asset
+    references (its ``dependencies``) still has its recorded digest; a cached scene is served
+    likewise only while its files do, and the stages after it are keyed on their digests too.
+
+    Raises
+    ------
+    AssetError, MaterialError, ValueError
+        With a one-line message; nothing is left at the output paths.
+    """
+    t_start = time.perf_counter()
+    path = Path(path)
+    extra = _extra_outputs(options)
+    outputs = (out_base.with_suffix(".glb"), out_base.with_suffix(".usdc"), out_base.with_suffix(".report.json"),
+               *(out_base.with_suffix(f".{name}.glb") for name in extra))
+    digest = file_digest(path)
+    key = job_key(digest, options, picks)
+    old = _up_to_date(outputs, key, path, options)
+    if old is not None:
+        return BakeResult(old, outputs, up_to_date=True)
+
+    runner = StageRunner(cache, trace_memory)
+    scene, clean, k_clean = _load(runner, path, digest, options)
+    warnings = [*scene.warnings, *clean.warnings]
+    mm_per_unit, scale_source = resolve_scale_mm(clean.scene, options.scale_mm)
+    assignment = assign_materials(clean.scene, options, mm_per_unit)
+    translucent = {i for i, m in assignment.materials.items() if m is not None}
+    split, origin = _split_shared_materials(assignment.scene, translucent)
+    b = _Baking(runner, options, split, {i: assignment.materials.get(o) for i, o in enumerate(origin)}, mm_per_unit,
+                warnings)
+    for mi in range(len(split.meshes)):
+        _bake_mesh(b, mi, clean.surfaces[mi], stage_key(k_clean, "mesh", 0, {"mesh": mi}), path, picks)
+    _bake_materials(b)
+    for t in TECHNIQUES:
+        if t.name not in b.used:
+            for stage, reason in t.dependent_stages.items():
+                runner.skip(stage, reason)
+            runner.skip(t.name, "the plan chose it for no object (--techniques auto)" if b.auto
+                        else f"not requested (--techniques {t.name})")
+    warnings.extend(f"stage cache: {rec.corrupt} damaged {rec.name} entr{'y' if rec.corrupt == 1 else 'ies'} "
+                    "(checksum mismatch or refused contents) deleted and recomputed" for rec in runner.records.values() if rec.corrupt)
+    baked_scene = replace(split, meshes=tuple(b.meshes), images=tuple(b.images), textures=tuple(b.textures))
+    extras = {
+        "scaleMmPerUnit": mm_per_unit,
+        "scaleSource": scale_source,
+        "thickness": {"unit": "mm", "raysPerSample": options.thickness_rays, "missCap": "bounding-box diagonal"},
+    }
+    asset = BakedAsset(baked_scene, b.attributes, b.scattering, b.scale_mm, extras, b.mesh_extras, b.material_extras)
+    head = {
+        "asset": str(path),
+        "job_key": key,
+        "dependencies": dict(scene.dependencies),
+        "schema_version": SCHEMA_VERSION,
+        "sssbake": version("sssbake"),
+        "outputs": [str(p) for p in outputs],
+        "scale_mm_per_unit": mm_per_unit,
+        "scale_source": scale_source,
+        "vertices": sum(len(p.positions) for m in baked_scene.meshes for p in m.primitives),
+        "faces": sum(len(p.faces) for m in baked_scene.meshes for p in m.primitives),
+        "materials": _materials_block(b, assignment, origin),
+        "sizes": b.sizes,
+        "atlas": b.atlases,
+        **b.blocks,
+        "plan": [e.to_json() for e in b.plan],
+    }
+    return BakeResult(_write(b, asset, outputs, extra, head, path, t_start), outputs)
+
+
+def _extra_outputs(options: BakeOptions) -> dict[str, Callable[[BakedAsset], BakedAsset]]:
+    """The techniques' extra files under `options` (`Technique.extra_outputs`), in registry order."""
+    return {name: make for t in TECHNIQUES for name, make in t.extra_outputs(options.technique_options(t.name)).items()}
+
+
+def _up_to_date(outputs: tuple[Path, ...], key: str, path: Path, options: BakeOptions) -> dict | None:
+    """The old report when every output exists, its `job_key` is `key` and its dependencies hold."""
+    if not all(p.exists() for p in outputs):
+        return None
+    try:
+        old = json.loads(outputs[2].read_text())
+    except (OSError, ValueError):
+        return None
+    return old if old.get("job_key") == key and report_dependencies_hold(old, path, options) else None
+
+
+def _load(runner: StageRunner, path: Path, digest: str, options: BakeOptions) -> tuple[Scene, CleanScene, str]:
+    """The scene as read, cleaned, and the key the stages after them build on."""
+    confinement = Confinement.for_asset(path, options.allow_roots)
+    scene, k_load = runner.run("load", STAGE_VERSIONS["load"], digest, LoadParams(options.allow_roots), load_stage,
+                               str(path), fresh=lambda cached: dependencies_hold(cached.dependencies, confinement))
+    # The asset's digest alone does not name the scene: a changed buffer, texture or layer changes every later key.
+    k_load = stage_key(k_load, "dependencies", 0, dict(scene.dependencies))
+    clean, k_clean = runner.run("clean", STAGE_VERSIONS["clean"], k_load, None, clean_scene, scene)
+    return scene, clean, k_clean
+
+
+def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path, picks: dict | None) -> None:
+    """Mesh `mi`: its sizes and, when it scatters, its general stages, the techniques chosen for it and
+    its baked primitives, thickness texture and scattering materials."""
+    mesh = b.scene.meshes[mi]
+    mesh_mm = b.mm_per_unit * instance_scale(b.scene, mi, b.warnings)
+    b.scale_mm[mi] = mesh_mm
+    diag_mm = float(np.linalg.norm(np.ptp(surface.positions, axis=0))) * mesh_mm
+    mats = sorted({p.material for p in mesh.primitives if b.material_of.get(p.material) is not None})
+    b.sizes[mesh.name] = [_size_report(mesh.name, diag_mm, b.material_of[m], b.warnings) for m in mats]
+    if not mats:
+        return
+    stages = _mesh_stages(b, mi, surface, mesh_mm, mesh_key)
+    if b.auto:
+        chosen, mesh_options = _plan_mesh(b, mi, mats, surface, stages.thickness, mesh_mm, mesh_key, path, picks)
+    else:
+        chosen, mesh_options = set(b.options.techniques), b.options
+    b.used |= chosen
+    results = _bake_mesh_techniques(b, mi, mats, surface, stages, mesh_mm, mesh_key, chosen, mesh_options)
+    _baked_mesh(b, mi, mats, surface, stages, mesh_mm, results)
+
+
+def _mesh_stages(b: _Baking, mi: int, surface: Surface, mesh_mm: float, mesh_key: str) -> _MeshStages:
+    """Atlas, thickness and thickness map of mesh `mi` (its welded `surface`)."""
+    mesh = b.scene.meshes[mi]
+    atlas_params = AtlasParams(b.options.atlas_resolution, b.options.atlas_padding)
+    atlas, k_atlas = b.runner.run("atlas", STAGE_VERSIONS["atlas"], mesh_key, atlas_params, atlas_stage,
+                                  [(p.positions, p.faces) for p in mesh.primitives])
+    b.atlases[mesh.name] = {
+        "width": atlas.width, "height": atlas.height, "charts": atlas.chart_count, "jittered": atlas.jittered,
+        # The child's own peak (a cached atlas reports the run that made it): the parent's RSS misses it.
+        "xatlas_peak_rss_mb": round(atlas.worker_peak_rss_mb, 1) if np.isfinite(atlas.worker_peak_rss_mb) else None,
+    }
+    cap = float(np.linalg.norm(np.ptp(surface.positions, axis=0)))
+    thick, _ = b.runner.run("thickness", STAGE_VERSIONS["thickness"], mesh_key, ThicknessParams(b.options.thickness_rays),
+                            thickness_stage, surface, cap)
+    if not thick.hit.all():
+        b.warnings.append(
+            f"mesh {mesh.name!r}: {int((~thick.hit).sum())} of {len(thick.hit)} thickness rays left the "
+            f"mesh (open surface); they were capped at the bounding-box diagonal ({cap * mesh_mm:.4g} mm)"
+        )
+    tmap, _ = b.runner.run("thickness_map", STAGE_VERSIONS["thickness_map"], mesh_key,
+                           ThicknessMapParams(atlas_params, b.options.thickness_rays), thickness_map_stage, atlas,
+                           [(p.positions, p.normals) for p in mesh.primitives], surface, cap)
+    return _MeshStages(atlas, k_atlas, thick, tmap)
+
+
+def _plan_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, thickness: ThicknessResult, mesh_mm: float,
+               mesh_key: str, path: Path, picks: dict | None) -> tuple[set[str], BakeOptions]:
+    """The planner's entries for mesh `mi`'s materials (``--techniques auto``; the pilot a cached
+    stage): the techniques they choose and the options they set."""
+    mesh = b.scene.meshes[mi]
+    world = np.asarray((b.scene.mesh_instances().get(mi) or [np.eye(4)])[0])  # the pilot sees the mesh as verify does
+
+    def cached_pilot(found, surface, mm, material, options, budget, vertices, world):  # `run_pilot`'s arguments
+        params = PilotParams(material, mm, options.to_json(), tuple(found), np.asarray(world))
+        return b.runner.run("pilot", STAGE_VERSIONS["pilot"], mesh_key, params, pilot_stage, surface, options, budget,
+                            vertices)[0]
+
+    entries = []
+    for m in mats:
+        e = decide(str(path), mesh.name, b.scene.materials[m].name, b.material_of[m], mesh.deforming, b.options,
+                   surface, thickness.thickness, mesh_mm)
+        entries.append(with_pilot(e, surface, mesh_mm, b.material_of[m], mesh.deforming, b.options, world,
+                                  (picks or {}).get(e.key), cached_pilot))
+    b.plan += entries
+    # material-scope techniques are baked after the meshes: each material keeps its entry's options
+    b.material_options.update({m: b.options.merged(e.params) for m, e in zip(mats, entries)})
+    return {t for e in entries for t in e.techniques}, b.options.merged({k: v for e in entries for k, v in e.params.items()})
+
+
+def _bake_mesh_techniques(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: _MeshStages, mesh_mm: float,
+                          mesh_key: str, chosen: set[str], options: BakeOptions) -> dict[str, TechniqueBake]:
+    """The `chosen` mesh-scope techniques on mesh `mi` under `options`, with its first scattering material."""
+    mesh = b.scene.meshes[mi]
+    primitives = tuple((p.positions, p.normals) for p in mesh.primitives)
+    results = {}
+    for t in TECHNIQUES:
+        if t.scope != MESH or t.name not in chosen:
+            continue
+        _one_material(t.name, mesh, mats, b.scene, b.warnings)
+        geometry = {"surface": surface, "primitives": primitives}
+        if t.needs_atlas:
+            geometry.update(atlas=stages.atlas, atlas_padding=b.options.atlas_padding)
+        # Keyed on the atlas when the technique reads it, else on the mesh: the welded surface.
+        result, _ = b.runner.run(t.name, t.stage_version, stages.atlas_key if t.needs_atlas else mesh_key,
+                                 TechniqueParams(b.material_of[mats[0]], mesh_mm, options.technique_options(t.name)),
+                                 technique_stage, t, geometry)
+        b.warnings.extend(f"mesh {mesh.name!r}: {w}" for w in result.warnings)
+        if result.tables is not None:
+            b.mesh_extras.setdefault(mi, {})[t.name] = result.tables
+        b.blocks[t.name][mesh.name] = result.report
+        results[t.name] = result
+    return results
+
+
+def _baked_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: _MeshStages, mesh_mm: float,
+                results: dict[str, TechniqueBake]) -> None:
+    """Mesh `mi` as written: its primitives on the atlas with their vertex attributes, its
+    thickness texture and its materials' fallbacks."""
+    mesh = b.scene.meshes[mi]
+    thick = stages.thickness.thickness
+    tmax = max(float(stages.thickness_map.image.max()), float(thick.max()), 1e-30)
+    b.images.append(Image(f"{mesh.name}_thickness", "image/png", _png_gray(stages.thickness_map.image / tmax)))
+    b.textures.append(Texture(len(b.images) - 1, LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE, CLAMP_TO_EDGE))
+    uv_set = max(len(p.uvs) for p in mesh.primitives)
+    prims = []
+    for pi, (p, part) in enumerate(zip(mesh.primitives, stages.atlas.parts)):
+        vm = part.vmapping
+        uvs = tuple(uv[vm] for uv in p.uvs)
+        uvs = uvs + (np.zeros((len(vm), 2)),) * (uv_set - len(uvs)) + (part.uvs,)
+        prims.append(replace(
+            p, positions=p.positions[vm], faces=part.faces, normals=p.normals[vm], uvs=uvs,
+            tangents=p.tangents[vm] if p.tangents is not None else None,
+            colors=p.colors[vm] if p.colors is not None else None,
+        ))
+        if b.material_of.get(p.material) is not None:
+            welded = surface.weld[pi][vm]
+            b.attributes[(mi, pi)] = (
+                VertexAttribute("thickness", thick[welded] * mesh_mm, "mm", "float32",
+                                "distance through the object along the inward normal"),
+                *(a for t in TECHNIQUES if t.name in results for a in t.vertex_attributes(results[t.name], welded)),
+            )
+    b.meshes[mi] = Mesh(mesh.name, tuple(prims))
+    ref = TextureRef(len(b.textures) - 1, uv_set)
+    for m in mats:
+        fallback = make_fallback(b.material_of[m], mesh_mm, thick * mesh_mm, ref, tmax)
+        b.scattering[m] = ScatteringMaterial(b.material_of[m], fallback, b.scene.materials[m].name)
+
+
+def _bake_materials(b: _Baking) -> None:
+    """The material-scope techniques, per scattering material: those the plan gave it (auto), else
+    every requested one. Keyed on the material and the options alone: no mesh data."""
+    for t in TECHNIQUES:
+        if t.scope != MATERIAL:
+            continue
+        chosen = ({m for m in b.scattering if any(e.material == b.scene.materials[m].name and t.name in e.techniques
+                                                  for e in b.plan)} if b.auto
+                  else set(b.scattering) if t.name in b.options.techniques else set())
+        if chosen:
+            b.used.add(t.name)
+        for m in sorted(chosen):
+            options = b.material_options.get(m, b.options).technique_options(t.name)
+            result, _ = b.runner.run(t.name, t.stage_version, "material",
+                                     TechniqueParams(b.scattering[m].material, 1.0, options), technique_stage, t, {})
+            name = b.scene.materials[m].name
+            b.warnings.extend(f"material {name!r}: {w}" for w in result.warnings)
+            if result.tables is not None:
+                b.material_extras.setdefault(m, {})[t.name] = result.tables
+            b.blocks[t.name][name if name not in b.blocks[t.name] else f"{name}#{m}"] = result.report
+
+
+def _materials_block(b: _Baking, assignment: Assignment, origin: list[int]) -> dict:
+    """The report's ``materials``: per material a primitive uses, its scattering material and why."""
+    used = {p.material for mesh in b.scene.meshes for p in mesh.primitives}
+    return {
+        b.scene.materials[i].name: {"scattering": m.to_json() if m is not None else None,
+                                    "reason": assignment.reasons.get(origin[i], "")}
+        for i, m in b.material_of.items() if i in used
+    }
+
+
+def _write(b: _Baking, asset: BakedAsset, outputs: tuple[Path, ...], extra: dict, head: dict, path: Path,
+           t_start: float) -> dict:
+    """Export `asset` to `outputs` (`extra`'s variants after the report), validate them and write the
+    report (`head`, then bytes, validation, stages, seconds and warnings); nothing is left at the
+    output paths when this raises."""
+    written: list[Path] = []
+    try:
+        summaries = {}
+        with b.runner.timed("export_gltf"):
+            summaries["glb"] = write_glb(asset, outputs[0])
+        written.append(outputs[0])
+        with b.runner.timed("export_usd"):
+            summaries["usdc"] = write_usdc(asset, outputs[1])
+        written.append(outputs[1])
+        for (name, make), out in zip(extra.items(), outputs[3:]):
+            with b.runner.timed(f"export_{name}"):
+                summaries[f"{name}_glb"] = write_glb(make(asset), out)
+            written.append(out)
+        glbs = {"gltf": outputs[0], **{f"gltf_{name}": out for name, out in zip(extra, outputs[3:])}}
+        validation = _validate(b.runner, glbs, outputs[1], b.options, b.warnings, path, len(b.scene.images))
+        report = {
+            **head,
+            "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"} for fmt, summary in summaries.items()},
+            "validation": validation,
+            "stages": b.runner.to_json(),
+            "seconds": round(time.perf_counter() - t_start, 4),
+            "warnings": b.warnings,
+        }
+        with atomic_path(outputs[2]) as tmp:
+            Path(tmp).write_text(json.dumps(report, indent=1, default=json_default))
+    except BaseException:
+        for p in written:
+            p.unlink(missing_ok=True)
+        raise
+    return report
+
+def _validate(runner: StageRunner, glbs: dict[str, Path], usdc: Path, options: BakeOptions, warnings: list[str],
+              source: Path | None = None, copied_images: int = 0) -> dict:
+    """Validate the outputs (`glbs`, by their ``validation`` key, and `usdc`); a glTF/GLB `source`
+    is validated too, in the same node process.
+
+    An output message is ``"inherited": true`` when the source's report has its code, or when it is
+    about the data of one of the first `copied_images` images (the source's, copied byte for byte:
+    an OBJ's PNG is not validated as input). Per glTF output: ``errors``/``warnings`` count sssbake's
+    own, ``inherited_errors``/``inherited_warnings`` the inherited ones, ``input`` the source's counts.
+    """
+    # glTF-Validator's codes about an image's bytes (not about the JSON that describes it)
+    image_data_codes = {"IMAGE_DATA_INVALID", "IMAGE_FEATURES_UNSUPPORTED", "IMAGE_MIME_TYPE_INVALID",
+                        "IMAGE_UNEXPECTED_EOS", "IMAGE_UNRECOGNIZED_FORMAT"}
+    if not options.validate:
+        runner.skip("validate", "turned off (--no-validate)")
+        return {}
+    from sssbake.exporters.gltf_validator import ValidatorUnavailable, validate_many
+    from sssbake.exporters.usd_validator import validate_usd
+
+    out = {}
+    with runner.timed("validate"):
+        # one validator run for the input and every glb
+        gltf_source = source is not None and Path(source).suffix.lower() in (".gltf", ".glb")
+        try:
+            try:
+                reports = validate_many(([source] if gltf_source else []) + list(glbs.values()))
+            except RuntimeError as e:  # the validator cannot read the input at all: the outputs alone
+                if not gltf_source:
+                    raise
+                warnings.append(f"the input was not validated: {str(e).splitlines()[0]}")
+                gltf_source, reports = False, validate_many(list(glbs.values()))
+            source_report = reports.pop(0) if gltf_source else None
+            source_codes = ({m.code for m in source_report.messages if m.severity in ("Error", "Warning")}
+                            if source_report is not None else set())
+
+            def inherited(m) -> bool:
+                parts = m.pointer.split("/")
+                copied = (m.code in image_data_codes and len(parts) == 3 and parts[1] == "images"
+                          and parts[2].isdigit() and int(parts[2]) < copied_images)
+                return m.code in source_codes or copied
+
+            for name, g in zip(glbs, reports):
+                shown = [m for m in g.messages if m.severity in ("Error", "Warning")]
+                flags = [inherited(m) for m in shown]
+                inherited_errors = sum(f for m, f in zip(shown, flags) if m.severity == "Error")
+                inherited_warnings = sum(f for m, f in zip(shown, flags) if m.severity == "Warning")
+                out[name] = {"errors": g.num_errors - inherited_errors, "warnings": g.num_warnings - inherited_warnings,
+                             "inherited_errors": inherited_errors, "inherited_warnings": inherited_warnings,
+                             "infos": g.num_infos,
+                             "messages": [{**m.to_json(), "inherited": f} for m, f in zip(shown, flags)]}
+                if source_report is not None:
+                    out[name]["input"] = {"errors": source_report.num_errors, "warnings": source_report.num_warnings,
+                                          "infos": source_report.num_infos}
+        except ValidatorUnavailable as e:
+            warnings.append(f"glTF validation skipped: {e}")
+        u = validate_usd(usdc)
+        out["usd"] = {"errors": len(u.errors), "warnings": len(u.warnings), "messages": list(u.errors)}
+    return out
+
+
+def json_default(o):
+    """JSON for the numpy values a report holds (`json.dumps`' default)."""
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    raise TypeError(f"not JSON-serialisable: {type(o).__name__}")

@@ -1,0 +1,146 @@
+"""The dipole profile integrated exactly over each vertex's own surface cell: the self term of
+the gather.
+
+A vertex owns a third of each incident triangle: the quadrilateral (vertex, edge midpoint,
+centroid, edge midpoint), two triangles with the vertex as apex. Over a triangle with apex v
+and far edge PQ, in polar coordinates about v, ∫ Rd(|p - v|) dp = (1/2π) ∫ G(ρ(φ)) dφ with
+G(r) = 2π ∫_0^r Rd(s) s ds in closed form (`dipole.disc_integral`) and ρ(φ) = ℓ / cos(φ - φ_⊥)
+the distance to the edge's line. Gauss-Legendre over φ makes it exact to ~1e-6 for any
+triangle shape. A disc of the same area is only right for round cells: on irregular meshes
+(long fans of thin triangles) it reaches across neighbours' cells, which then count twice.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sssbake.pipeline.core.dipole import DipoleParams, disc_integral
+
+#: Gauss-Legendre nodes per sub-triangle of a vertex's own cell (~1e-6), and per triangle seen
+#: from a point beside it (~3e-5 typical, 0.6 % at worst with the point near an edge's line).
+NODES = 12
+NODES_BESIDE = 8
+#: Table nodes of G per e-fold of r.
+STEPS_PER_E = 200
+
+
+@dataclass(frozen=True, eq=False)
+class Cumulative:
+    """G(r) = 2π ∫_0^r Rd(s) s ds, tabulated: ln G linear in ln r on `STEPS_PER_E` nodes per
+    e-fold (relative error ~1e-5; tests measure it), G ∝ r² below the first node, G(∞) above
+    the last; ~10× cheaper than `dipole.disc_integral` for the many nodes of the triangle rules.
+
+    Attributes
+    ----------
+    log_r0 : float
+    log_g : (3, N) float64
+        ln G per channel at ln r = log_r0 + i / STEPS_PER_E.
+    slope : (3, N) float64
+        log_g[:, i + 1] - log_g[:, i] (0 at the last node).
+    """
+
+    log_r0: float
+    log_g: np.ndarray
+    slope: np.ndarray
+
+    @staticmethod
+    def build(params: DipoleParams) -> "Cumulative":
+        # From far inside the quadratic start to where G has reached R_d to ~1e-6 (the tail
+        # beyond r falls as z/r at least as fast as for σ_tr = 0).
+        lo = np.log(1e-4 * float(params.z_r.min()))
+        hi = np.log(1e6 * float(params.z_v.max()))
+        r = np.exp(np.arange(lo, hi + 1.0 / STEPS_PER_E, 1.0 / STEPS_PER_E))
+        log_g = np.ascontiguousarray(np.log(np.maximum(disc_integral(r, params), 1e-300)).T)
+        return Cumulative(float(lo), log_g, np.diff(log_g, axis=1, append=log_g[:, -1:]))
+
+    def __call__(self, r: np.ndarray) -> np.ndarray:
+        """(...,) radii, mm -> (..., 3)."""
+        u = (np.log(np.maximum(r, 1e-300)) - self.log_r0) * STEPS_PER_E
+        # The nodes are evenly spaced in u: index them directly (np.interp would search), one
+        # contiguous channel at a time.
+        at = np.clip(u, 0.0, self.log_g.shape[1] - 1)
+        i = at.astype(np.intp)
+        f = at - i
+        # Below the table G ∝ r² (a disc of constant Rd(0)); above it G has reached R_d.
+        below = np.minimum(u, 0.0) * (2.0 / STEPS_PER_E)
+        out = np.stack([g.take(i) + f * s.take(i) + below for g, s in zip(self.log_g, self.slope)], axis=-1)
+        return np.exp(out, out=out)
+
+
+def cell_integral(positions_mm: np.ndarray, faces: np.ndarray, params: DipoleParams) -> np.ndarray:
+    """∫ Rd(|p - x_v|) dp over each vertex's barycentric cell.
+
+    Parameters
+    ----------
+    positions_mm : (n, 3) float64
+    faces : (m, 3) int
+    params : DipoleParams
+
+    Returns
+    -------
+    (n, 3) float64, in [0, R_d]; 0 for vertices in no triangle.
+    """
+    x = np.asarray(positions_mm, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    out = np.zeros((len(x), 3))
+    centroid = x[f].mean(axis=1)
+    cumulative = Cumulative.build(params)
+    for k in range(3):
+        v = f[:, k]
+        for other in (f[:, (k + 1) % 3], f[:, (k + 2) % 3]):
+            value = apex_triangle(x[v], 0.5 * (x[v] + x[other]), centroid, cumulative)
+            for c in range(3):
+                out[:, c] += np.bincount(v, weights=value[:, c], minlength=len(x))
+    return out
+
+
+def triangle_integral_in_plane(point: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
+                               cumulative: "Cumulative") -> np.ndarray:
+    """∫ Rd(|p - point|) dp over triangles (a, b, c) from points in their planes.
+
+    The triangle is the signed sum of the three triangles (point, edge) (their orientation
+    against the triangle's), each an `apex_triangle`.
+
+    Parameters
+    ----------
+    point, a, b, c : (m, 3) float64, mm
+    cumulative : Cumulative
+        The material's G.
+
+    Returns
+    -------
+    (m, 3) float64
+    """
+    normal = np.cross(b - a, c - a)
+    out = np.zeros((len(point), 3))
+    for p, q in ((a, b), (b, c), (c, a)):
+        sign = np.sign(np.einsum("ij,ij->i", np.cross(p - point, q - point), normal))
+        out += sign[:, None] * apex_triangle(point, p, q, cumulative, NODES_BESIDE)
+    return out
+
+
+def apex_triangle(apex: np.ndarray, p: np.ndarray, q: np.ndarray, cumulative: "Cumulative",
+                  nodes: int = NODES) -> np.ndarray:
+    """∫ Rd(|x - apex|) dx over triangles (apex, p, q), (m, 3) each point -> (m, 3)."""
+    x, weights = np.polynomial.legendre.leggauss(nodes)
+    value = np.zeros((len(apex), 3))
+    e1, e2 = p - apex, q - apex
+    double_area = np.linalg.norm(np.cross(e1, e2), axis=1)
+    length = np.linalg.norm(q - p, axis=1)
+    ok = np.flatnonzero(double_area > 1e-300)  # flat triangles (the apex on the edge's line) hold nothing
+    if len(ok) == 0:
+        return value
+    e1, e2, length, double_area = e1[ok], e2[ok], length[ok], double_area[ok]
+    l1, l2 = np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)
+    angle = np.arccos(np.clip(np.einsum("ij,ij->i", e1, e2) / (l1 * l2), -1.0, 1.0))
+    # Distance from the apex to the edge's line, and the angle from e1 to its foot (negative
+    # when the foot lies beyond p, the angle at p being obtuse).
+    foot = double_area / length
+    to_foot = np.arccos(np.clip(foot / l1, -1.0, 1.0))
+    to_foot = np.where(np.einsum("ij,ij->i", -e1, e2 - e1) >= 0.0, to_foot, -to_foot)
+    phi = 0.5 * angle[:, None] * (x[None, :] + 1.0)  # (m, nodes) from e1 towards e2
+    rho = foot[:, None] / np.maximum(np.cos(phi - to_foot[:, None]), 1e-12)
+    value[ok] = np.einsum("k,mkc->mc", weights, cumulative(rho)) * (0.5 * angle / (2.0 * np.pi))[:, None]
+    return value

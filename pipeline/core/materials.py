@@ -1,0 +1,196 @@
+"""Scattering materials: user coefficients, the measured presets of Jensen et al. 2001, validation.
+
+Coefficients are in 1/mm (the literature's unit), RGB, float64.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from functools import cache
+from importlib import resources
+
+import numpy as np
+
+from sssbake.pipeline.core.errors import SssbakeError
+
+
+class MaterialError(SssbakeError, ValueError):
+    """A material's parameters are impossible or unknown."""
+
+
+@dataclass(frozen=True)
+class Material:
+    """A homogeneous scattering material.
+
+    Attributes
+    ----------
+    name : str
+    sigma_s_prime : (3,) float64
+        Reduced scattering coefficient per RGB channel, 1/mm.
+    sigma_a : (3,) float64
+        Absorption coefficient per RGB channel, 1/mm.
+    eta : float
+        Relative index of refraction (>= 1).
+    """
+
+    name: str
+    sigma_s_prime: tuple[float, float, float]
+    sigma_a: tuple[float, float, float]
+    eta: float
+
+    def __post_init__(self) -> None:
+        s = _rgb(self.sigma_s_prime, "sigma_s_prime", self.name)
+        a = _rgb(self.sigma_a, "sigma_a", self.name)
+        object.__setattr__(self, "sigma_s_prime", s)
+        object.__setattr__(self, "sigma_a", a)
+        if not (isinstance(self.eta, (int, float)) and math.isfinite(self.eta)) or self.eta < 1.0:
+            raise MaterialError(f"material {self.name!r}: eta must be a finite number >= 1, got {self.eta!r}")
+        object.__setattr__(self, "eta", float(self.eta))
+        if any(x + y <= 0.0 for x, y in zip(s, a)):
+            raise MaterialError(
+                f"material {self.name!r}: sigma_s_prime + sigma_a must be > 0 in every channel"
+            )
+
+    @property
+    def s(self) -> np.ndarray:
+        """(3,) float64 reduced scattering coefficient, 1/mm."""
+        return np.array(self.sigma_s_prime, dtype=np.float64)
+
+    @property
+    def a(self) -> np.ndarray:
+        """(3,) float64 absorption coefficient, 1/mm."""
+        return np.array(self.sigma_a, dtype=np.float64)
+
+    @property
+    def sigma_t_prime(self) -> np.ndarray:
+        """(3,) reduced extinction coefficient σ'_t = σ'_s + σ_a, 1/mm."""
+        return self.s + self.a
+
+    @property
+    def albedo_prime(self) -> np.ndarray:
+        """(3,) reduced albedo α' = σ'_s / σ'_t."""
+        return self.s / self.sigma_t_prime
+
+    @property
+    def sigma_tr(self) -> np.ndarray:
+        """(3,) effective transport coefficient σ_tr = sqrt(3 σ_a σ'_t), 1/mm."""
+        return np.sqrt(3.0 * self.a * self.sigma_t_prime)
+
+    @property
+    def mean_free_path_mm(self) -> np.ndarray:
+        """(3,) reduced mean free path 1/σ'_t in mm."""
+        return 1.0 / self.sigma_t_prime
+
+    @property
+    def diffusion_length_mm(self) -> np.ndarray:
+        """(3,) diffusion length 1/σ_tr in mm (inf without absorption)."""
+        with np.errstate(divide="ignore"):
+            return np.where(self.sigma_tr > 0.0, 1.0 / np.maximum(self.sigma_tr, 1e-300), np.inf)
+
+    def to_json(self) -> dict:
+        return {
+            "name": self.name,
+            "sigma_s_prime": list(self.sigma_s_prime),
+            "sigma_a": list(self.sigma_a),
+            "eta": self.eta,
+        }
+
+
+def _rgb(value, field: str, name: str) -> tuple[float, float, float]:
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise MaterialError(f"material {name!r}: {field} must be numbers, got {value!r}") from None
+    if arr.size == 1:
+        arr = np.repeat(arr, 3)
+    if arr.size != 3:
+        raise MaterialError(f"material {name!r}: {field} needs 1 or 3 values (RGB), got {arr.size}")
+    if not np.all(np.isfinite(arr)):
+        raise MaterialError(f"material {name!r}: {field} must be finite, got {arr.tolist()}")
+    if np.any(arr < 0.0):
+        raise MaterialError(f"material {name!r}: {field} must be >= 0, got {arr.tolist()}")
+    return (float(arr[0]), float(arr[1]), float(arr[2]))
+
+
+@cache
+def _table() -> dict:
+    text = resources.files("sssbake.pipeline.core").joinpath("data/jensen2001_materials.json").read_text()
+    return json.loads(text)["materials"]
+
+
+def preset_names() -> list[str]:
+    """Lower-case names of the 12 measured presets (Jensen et al. 2001)."""
+    return sorted(k.lower() for k in _table())
+
+
+def preset(name: str) -> Material:
+    """The measured material `name` (case-insensitive), e.g. ``preset("marble")``."""
+    for key, row in _table().items():
+        if key.lower() == name.lower():
+            return Material(key.lower(), row["sigma_s_prime"], row["sigma_a"], row["eta"])
+    raise MaterialError(f"unknown material preset {name!r}; choose one of {', '.join(preset_names())}")
+
+
+def from_albedo_mfp(name: str, albedo, mfp_mm, eta: float = 1.3) -> Material:
+    """A material from a diffuse albedo (total diffuse reflectance R_d) and a mean free path.
+
+    Inverts the closed-form R_d(α') per channel (it is monotone in α'), then sets
+    σ'_t = 1 / mfp.
+
+    Parameters
+    ----------
+    albedo : (3,) float in (0, 1)
+        Wanted total diffuse reflectance per channel.
+    mfp_mm : (3,) float > 0
+        Reduced mean free path 1/σ'_t in mm.
+    """
+    from scipy.optimize import brentq
+
+    from sssbake.pipeline.core.dipole import total_diffuse_reflectance
+
+    rd = np.asarray(_rgb(albedo, "albedo", name))
+    mfp = np.asarray(_rgb(mfp_mm, "mean_free_path_mm", name))
+    if np.any(mfp <= 0.0):
+        raise MaterialError(f"material {name!r}: mean_free_path_mm must be > 0, got {mfp.tolist()}")
+    rd_max = float(total_diffuse_reflectance(np.array([1.0]), eta)[0])
+    alphas = []
+    for r in rd:
+        if not 0.0 < r < rd_max:
+            raise MaterialError(
+                f"material {name!r}: albedo {r} is outside (0, {rd_max:.4f}), the reachable range at eta={eta}"
+            )
+        alphas.append(brentq(lambda a, r=r: total_diffuse_reflectance(np.array([a]), eta)[0] - r, 0.0, 1.0, xtol=1e-14))
+    alpha = np.array(alphas)
+    st = 1.0 / mfp
+    return Material(name, alpha * st, (1.0 - alpha) * st, eta)
+
+
+def material_from_spec(spec: dict | str, name: str = "custom") -> Material:
+    """A material from a config value: a preset name, or a table with
+    ``preset`` / (``sigma_s_prime``, ``sigma_a``, ``eta``) / (``albedo``, ``mean_free_path_mm``, ``eta``)."""
+    if isinstance(spec, str):
+        return preset(spec)
+    if not isinstance(spec, dict):
+        raise MaterialError(f"material {name!r}: expected a preset name or a table, got {spec!r}")
+    keys = set(spec) - {"scale_mm", "name"}
+    if "preset" in keys:
+        extra = keys - {"preset"}
+        if extra:
+            raise MaterialError(f"material {name!r}: 'preset' cannot be combined with {sorted(extra)}")
+        return preset(spec["preset"])
+    if {"sigma_s_prime", "sigma_a"} <= keys:
+        extra = keys - {"sigma_s_prime", "sigma_a", "eta"}
+        if extra:
+            raise MaterialError(f"material {name!r}: unknown keys {sorted(extra)}")
+        return Material(spec.get("name", name), spec["sigma_s_prime"], spec["sigma_a"], spec.get("eta", 1.3))
+    if {"albedo", "mean_free_path_mm"} <= keys:
+        extra = keys - {"albedo", "mean_free_path_mm", "eta"}
+        if extra:
+            raise MaterialError(f"material {name!r}: unknown keys {sorted(extra)}")
+        return from_albedo_mfp(spec.get("name", name), spec["albedo"], spec["mean_free_path_mm"], spec.get("eta", 1.3))
+    raise MaterialError(
+        f"material {name!r}: give 'preset', or 'sigma_s_prime' + 'sigma_a' [+ 'eta'], "
+        f"or 'albedo' + 'mean_free_path_mm' [+ 'eta']; got keys {sorted(keys)}"
+    )

@@ -1,0 +1,105 @@
+"""Material assignment: which scattering material (or none) each source material gets, and why."""
+
+from __future__ import annotations
+
+import fnmatch
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from sssbake.pipeline.core.dipole import total_diffuse_reflectance
+from sssbake.pipeline.core.materials import Material, material_from_spec
+from sssbake.pipeline.mesh.scene import Scene, SourceMaterial
+from sssbake.pipeline.options import OPAQUE, BakeOptions
+
+DEFAULT_MATERIAL_NAME = "sssbake_default"
+
+
+@dataclass(frozen=True)
+class Assignment:
+    """Scattering material per scene material index (None: opaque), with a one-line reason each.
+
+    `scene` is the input scene, plus a material for primitives that had none.
+    """
+
+    scene: Scene
+    materials: dict[int, Material | None]
+    reasons: dict[int, str]
+
+
+def _spec_material(spec, name: str) -> Material | None:
+    if isinstance(spec, str) and spec.lower() == OPAQUE:
+        return None
+    return material_from_spec(spec, name)
+
+
+def material_from_khr_volume(src: SourceMaterial, mm_per_unit: float) -> Material | None:
+    """Scattering parameters from a glTF KHR_materials_volume attenuation and the base colour.
+
+    Inverts sssbake's own fallback: the attenuation gives σ_tr = -ln(c)/d per channel, the base
+    colour is taken as the total diffuse reflectance R_d, which fixes α', and then
+    σ'_t = σ_tr / sqrt(3(1 - α')). Returns None when the volume has no finite attenuation.
+    """
+    vol = src.volume or {}
+    dist = vol.get("attenuationDistance")
+    if dist is None or not np.isfinite(dist) or dist <= 0:
+        return None
+    colour = np.clip(np.asarray(vol.get("attenuationColor", [1, 1, 1]), dtype=np.float64), 1e-6, 1.0)
+    sigma_tr = -np.log(colour) / (dist * mm_per_unit)  # 1/mm
+    if np.all(sigma_tr <= 0):
+        return None
+    eta = float(src.ior or 1.5)
+    rd_max = float(total_diffuse_reflectance(1.0 - 1e-9, eta))
+    target = np.clip(np.asarray(src.base_color_factor[:3], dtype=np.float64), 1e-4, rd_max * (1 - 1e-6))
+    # R_d is monotone in α': invert by bisection per channel.
+    lo, hi = np.zeros(3), np.ones(3)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        below = total_diffuse_reflectance(mid, eta) < target
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    alpha = 0.5 * (lo + hi)
+    # A channel with no attenuation would need infinite σ'_t; borrow the smallest positive σ_tr.
+    sigma_tr = np.where(sigma_tr > 0, sigma_tr, sigma_tr[sigma_tr > 0].min())
+    st = sigma_tr / np.sqrt(3.0 * (1.0 - alpha))
+    return Material(f"{src.name} (KHR_materials_volume)", alpha * st, (1.0 - alpha) * st, eta)
+
+
+def assign_materials(scene: Scene, options: BakeOptions, mm_per_unit: float) -> Assignment:
+    """Decide each material's scattering parameters.
+
+    Order: the first ``options.materials`` pattern matching the material's name; else the
+    material's own KHR_materials_volume attenuation; else ``options.material``. Primitives with
+    no material get a new one named ``sssbake_default`` with ``options.material``.
+
+    Raises
+    ------
+    MaterialError
+        When a rule names an unknown preset or impossible coefficients.
+    """
+    materials = list(scene.materials)
+    meshes = scene.meshes
+    if any(p.material is None for m in meshes for p in m.primitives):
+        default_index = len(materials)
+        materials.append(SourceMaterial(DEFAULT_MATERIAL_NAME, base_color_factor=(0.8, 0.8, 0.8, 1.0)))
+        meshes = tuple(
+            replace(m, primitives=tuple(p if p.material is not None else replace(p, material=default_index) for p in m.primitives))
+            for m in meshes
+        )
+    used = sorted({p.material for m in meshes for p in m.primitives})
+    out: dict[int, Material | None] = {}
+    reasons: dict[int, str] = {}
+    for i in used:
+        src = materials[i]
+        rule = next(((g, s) for g, s in options.materials if fnmatch.fnmatch(src.name.lower(), g.lower())), None)
+        if rule is not None:
+            out[i] = _spec_material(rule[1], src.name)
+            reasons[i] = f"material name matches rule {rule[0]!r}"
+            continue
+        khr = material_from_khr_volume(src, mm_per_unit) if src.volume else None
+        if khr is not None:
+            out[i] = khr
+            reasons[i] = "from the input's KHR_materials_volume attenuation and base colour"
+            continue
+        out[i] = _spec_material(options.material, src.name)
+        reasons[i] = f"asset material {options.material!r}" if isinstance(options.material, str) else "asset material"
+    return Assignment(replace(scene, meshes=meshes, materials=tuple(materials)), out, reasons)

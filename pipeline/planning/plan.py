@@ -1,0 +1,241 @@
+"""``sssbake plan``: which technique each object and material of an asset needs, from what the scene
+measures, each decision with a one-line reason (models only what a scene requires).
+
+Per translucent (mesh, material), in order, the first rule that applies:
+
+1. **nearly opaque**: half of the widest channel's R_d lies within a radius under the atlas texel
+   footprint (diagonal / atlas resolution): scattering would not show; the standard fallback only
+   (its base colour is R_d);
+2. **heterogeneous** medium (``lpv_field`` other than homogeneous): lpv, the only technique with
+   a per-cell medium; the grid resolution is the smallest whose cells hold σ_tr Δx <= `LPV_COARSE`
+   in every channel (16 .. `LPV_MAX_RESOLUTION`);
+3. **deforming** (glTF skin or morph targets, USD skeleton or blend shapes): no per-vertex bake;
+   screen, which needs nothing per vertex;
+4. **thin or small** relative to the diffusion length 1/σ_tr of the most translucent channel (median
+   thickness under `THIN` diffusion lengths, or a diagonal under `SMALL`): light crosses the
+   object, a global technique: prt (with ``max_bytes_per_vertex`` as its byte budget; screen when
+   prt's tables cannot fit it);
+5. otherwise thick, local scattering: screen (no per-vertex bytes).
+
+Opaque materials (by assignment) get nothing. With an error budget (``budget_rmse``) the
+technique's parameters come from a pilot on a subsample (`plan_pilot`, `piloted`), which may also
+turn screen into prt; otherwise parameters not set by a rule keep the bake's defaults.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from sssbake.pipeline.core.dipole import DipoleParams, radius_holding
+from sssbake.pipeline.core.directions import direction_set
+from sssbake.pipeline.core.surface import Surface
+from sssbake.pipeline.mesh.clean import clean_scene
+from sssbake.pipeline.mesh.load import load_scene
+from sssbake.pipeline.mesh.scale import instance_scale, resolve_scale_mm
+from sssbake.pipeline.mesh.thickness import bake_thickness
+from sssbake.pipeline.options import BakeOptions
+from sssbake.pipeline.planning.assign import assign_materials
+from sssbake.pipeline.techniques.lpv.stage import LPV_COARSE
+from sssbake.pipeline.techniques.prt.compress import budget_reference_count
+
+#: Below this many diffusion lengths of median thickness, light crosses the object.
+THIN = 4.0
+#: Below this many diffusion lengths of bounding-box diagonal, the object is small.
+SMALL = 20.0
+#: Largest lpv grid the planner chooses (cells along the longest side).
+LPV_MAX_RESOLUTION = 128
+
+
+@dataclass(frozen=True)
+class PlanEntry:
+    """The plan of one translucent (or opaque) material of one mesh.
+
+    Attributes
+    ----------
+    asset : str
+    mesh : str
+    material : str
+        The source material's name.
+    techniques : tuple of str
+        Empty for none (the standard fallback only, or opaque).
+    params : dict
+        Bake options the plan sets (e.g. ``lpv_resolution``).
+    reasons : tuple of str
+        One line per decision.
+    measures : dict
+        What the rules read: ``diagonal_mm``, ``median_thickness_mm`` (area-weighted), ``diffusion_mm`` (per
+        channel, 1/σ_tr), ``median_radius_mm`` (the widest channel's), ``texel_mm``.
+    pilot : dict
+        With a budget (`piloted`): ``budget``, ``vertices`` (the subsample's), ``reference``,
+        ``candidates`` (``label``, ``technique``, ``params``), ``rows`` (`plan_pilot.Pilot`),
+        ``chosen`` (the pilot's pick), ``met``, ``pick`` (the candidate baked).
+    """
+
+    asset: str
+    mesh: str
+    material: str
+    techniques: tuple[str, ...]
+    params: dict = field(default_factory=dict)
+    reasons: tuple[str, ...] = ()
+    measures: dict = field(default_factory=dict)
+    pilot: dict = field(default_factory=dict)
+
+    @property
+    def key(self) -> str:
+        """``mesh/material``: what the budget check's picks are keyed on."""
+        return f"{self.mesh}/{self.material}"
+
+    def to_json(self) -> dict:
+        return {"asset": self.asset, "mesh": self.mesh, "material": self.material,
+                "techniques": list(self.techniques), "params": self.params, "reasons": list(self.reasons),
+                "measures": self.measures, **({"pilot": self.pilot} if self.pilot else {})}
+
+
+def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
+    """The plan of every (mesh, material) of the asset at `path` (module docstring).
+
+    Raises
+    ------
+    AssetError, MaterialError, ValueError
+        As the bake would: unreadable files, no scale, bad materials.
+    """
+    path = Path(path)
+    clean = clean_scene(load_scene(str(path), options.allow_roots))
+    mm_per_unit, _ = resolve_scale_mm(clean.scene, options.scale_mm)
+    assignment = assign_materials(clean.scene, options, mm_per_unit)
+    instances = assignment.scene.mesh_instances()
+    entries = []
+    for mi, mesh in enumerate(assignment.scene.meshes):  # primitives without a material got one
+        used = sorted({p.material for p in mesh.primitives if p.material is not None})
+        if not used:
+            continue
+        surface = clean.surfaces[mi]
+        mesh_mm = mm_per_unit * instance_scale(clean.scene, mi, [])
+        diagonal = float(np.linalg.norm(np.ptp(surface.positions, axis=0)))
+        thickness = None
+        for m in used:
+            material = assignment.materials.get(m)
+            name = assignment.scene.materials[m].name
+            if material is None:
+                entries.append(PlanEntry(str(path), mesh.name, name, (), {},
+                                         (f"opaque: {assignment.reasons.get(m, 'no scattering material')}",)))
+                continue
+            if thickness is None:  # one thickness bake per mesh, only for translucent meshes
+                thickness = bake_thickness(surface.positions, surface.faces, surface.normals, cap=diagonal).thickness
+            entry = decide(str(path), mesh.name, name, material, mesh.deforming, options, surface, thickness, mesh_mm)
+            entries.append(with_pilot(entry, surface, mesh_mm, material, mesh.deforming, options,
+                                      (instances.get(mi) or [None])[0]))
+    return entries
+
+
+def with_pilot(entry: PlanEntry, surface: Surface, mesh_mm: float, material, deforming: bool, options: BakeOptions,
+               world: np.ndarray | None = None, pick: int | None = None, measure=None) -> PlanEntry:
+    """`entry` after the pilot (`plan_pilot`, `piloted`) when `options.budget_rmse` is set and it
+    plans a technique; `entry` itself otherwise.
+
+    Parameters
+    ----------
+    world : (4, 4) float64, optional
+        The mesh's first instance's world matrix.
+    pick : int, optional
+        The budget check's candidate to bake instead of the pilot's choice.
+    measure : callable, optional
+        Called with `plan_pilot.run_pilot`'s arguments in its place (the bake caches it as a stage).
+    """
+    if options.budget_rmse is None or not entry.techniques:
+        return entry
+    from sssbake.pipeline.planning.pilot import candidates, run_pilot
+
+    found = candidates(entry.techniques[0], entry.params, options, len(surface.positions), deforming)
+    pilot = (measure or run_pilot)(found, surface, mesh_mm, material, options, options.budget_rmse,
+                                   len(surface.positions), world)
+    return piloted(entry, pilot, options.budget_rmse, pick)
+
+
+def piloted(entry: PlanEntry, pilot, budget: float, pick: int | None = None) -> PlanEntry:
+    """`entry` with the technique and parameters of the pilot's candidate (`plan_pilot.Pilot`),
+    its own choice or, after the check on the full asset, candidate `pick`; the reason lists what
+    the pilot measured."""
+    i = pilot.chosen if pick is None else pick
+    c = pilot.candidates[i]
+    measured = ", ".join(f"{r['label']} {r['rmse_image']:.4f}" for r in pilot.rows if r["rmse_image"] is not None)
+    if pick is not None and pick != pilot.chosen:
+        verdict = f"{c.label}, moved from the pilot's {pilot.candidates[pilot.chosen].label} by the check on the full asset"
+    elif pilot.met:
+        verdict = f"{c.label}, the cheapest within it"
+    else:
+        verdict = f"none within it; {c.label}, the least RMSE"
+    reason = (f"pilot on {pilot.vertices} vertices, image RMSE against the {pilot.reference} (budget {budget:g}): "
+              f"{measured}; {verdict}")
+    params = {**entry.params, **c.params} if c.technique in entry.techniques else dict(c.params)
+    record = {"budget": budget, "vertices": pilot.vertices, "reference": pilot.reference,
+              "candidates": [{"label": k.label, "technique": k.technique, "params": k.params} for k in pilot.candidates],
+              "rows": [dict(r) for r in pilot.rows], "chosen": pilot.chosen, "met": pilot.met, "pick": i}
+    return replace(entry, techniques=(c.technique,), params=params, reasons=entry.reasons + (reason,), pilot=record)
+
+
+def area_median(values: np.ndarray, areas: np.ndarray) -> float:
+    """The median of per-vertex `values` (n,) weighted by the vertices' `areas` (n,): the value half
+    the surface is under (a vertex count would let densely meshed thin rims outvote big faces)."""
+    order = np.argsort(values)
+    cumulative = np.cumsum(np.asarray(areas, dtype=np.float64)[order])
+    if not cumulative[-1] > 0:
+        return float(np.median(values))
+    return float(np.asarray(values)[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+
+
+def decide(asset: str, mesh: str, name: str, material, deforming: bool, options: BakeOptions, surface: Surface,
+           thickness: np.ndarray, mesh_mm: float) -> PlanEntry:
+    """The plan of one translucent `material` of a mesh: the first rule of the module docstring that
+    applies, from the mesh's welded `surface`, its per-vertex `thickness` (n,) in file units and
+    its mm per unit."""
+    extent = np.ptp(surface.positions, axis=0) * mesh_mm
+    diagonal_mm, longest_mm = float(np.linalg.norm(extent)), float(extent.max())
+    thickness_mm = area_median(thickness, surface.vertex_areas) * mesh_mm
+    vertices = len(surface.positions)
+    params = DipoleParams.from_material(material)
+    sigma_tr = np.asarray(params.sigma_tr, dtype=np.float64)
+    diffusion = 1.0 / np.maximum(sigma_tr, 1e-12)
+    radius = float(radius_holding(params, 0.5).max())
+    texel = diagonal_mm / options.atlas_resolution
+    measures = {"diagonal_mm": diagonal_mm, "median_thickness_mm": thickness_mm,
+                "diffusion_mm": [float(min(d, 1e12)) for d in diffusion], "median_radius_mm": radius,
+                "texel_mm": texel}
+
+    def entry(techniques, reason, extra=None):
+        return PlanEntry(asset, mesh, name, tuple(techniques), extra or {}, (reason,), measures)
+
+    if radius < texel:
+        return entry((), f"nearly opaque at this scale: half of R_d lies within {radius:.3g} mm, under the "
+                         f"{texel:.3g} mm texel; fallback only (base colour R_d)")
+    if options.lpv_field != "homogeneous":
+        cells = math.ceil(longest_mm * float(sigma_tr.max()) / LPV_COARSE)
+        resolution = int(min(max(cells, 16), LPV_MAX_RESOLUTION))
+        capped = "" if cells <= LPV_MAX_RESOLUTION else f" (capped: {cells} wanted)"
+        return entry(("lpv",), f"heterogeneous medium ({options.lpv_field}): lpv, grid {resolution} so that "
+                               f"sigma_tr * cell <= {LPV_COARSE:g}{capped}",
+                     {"lpv_resolution": resolution, "lpv_field": options.lpv_field})
+    if deforming:
+        return entry(("screen",), "deforming mesh (skin or morph targets): no per-vertex bake; screen")
+    widest = float(diffusion.max())
+    if thickness_mm < THIN * widest or diagonal_mm < SMALL * widest:
+        why = (f"thin or small for its diffusion length {widest:.3g} mm (median thickness {thickness_mm:.3g} mm, "
+               f"diagonal {diagonal_mm:.3g} mm): light crosses it")
+        budget = options.max_bytes_per_vertex
+        if budget is None:
+            return entry(("prt",), f"{why}; prt")
+        try:  # the budget, not the reference floor, sets the reference points
+            budget_reference_count(budget, vertices, direction_set(options.prt_directions), options.prt_sh_order,
+                                   options.prt_tables, options.prt_weight_bits, options.prt_detail_order)
+        except ValueError as error:
+            least = str(error).rsplit("give at least ", 1)[-1]
+            return entry(("screen",), f"{why}, but prt needs at least {least} bytes per vertex here, over the "
+                                      f"{budget:g} allowed; screen, nothing per vertex")
+        return entry(("prt",), f"{why}; prt within {budget:g} bytes per vertex",
+                     {"prt_byte_budget": float(budget), "prt_reference_floor": 0})
+    return entry(("screen",), f"thick and local: median thickness {thickness_mm / widest:.3g} diffusion lengths "
+                              f"({widest:.3g} mm); screen, nothing per vertex")

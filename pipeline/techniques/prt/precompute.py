@@ -1,0 +1,115 @@
+"""The prt precompute (Hao & Varshney 2004 §3): per vertex and light direction, the scattered
+radiance per unit irradiance
+
+    q_j(x_o) = Σ_i F_t(η, n_i·ω_j) (1/π) Rd(|x_i - x_o|) max(0, n_i·ω_j) vis_j(x_i) ΔA(x_i)
+
+for K directions, each colour channel separately.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sssbake.pipeline.core.dipole import DipoleParams
+from sssbake.pipeline.core.freed_memory import release_freed_memory
+from sssbake.pipeline.core.fresnel import fresnel_transmittance
+from sssbake.pipeline.core.materials import Material
+from sssbake.pipeline.core.scatter_operator import SCATTER_DEFAULTS, ScatterOperator, ScatterOptions, scatter_operator
+from sssbake.pipeline.core.surface import Surface
+from sssbake.pipeline.core.visibility import direction_visibility
+
+
+@dataclass(frozen=True)
+class PrtPrecomputeOptions:
+    """Attributes
+    ----------
+    scatter : ScatterOptions
+        The gather's energy bound and hierarchy.
+    chunk : int
+        Directions gathered at once (bounds temporary memory; 25 rather than 50 is smaller and
+        faster: benchmarks/README.md#prt-precompute-chunk).
+    """
+
+    scatter: ScatterOptions = SCATTER_DEFAULTS
+    chunk: int = 25
+
+
+PRT_PRECOMPUTE_DEFAULTS = PrtPrecomputeOptions()
+
+
+@dataclass(frozen=True, eq=False)
+class PrtIntegrals:
+    """Attributes
+    ----------
+    q : (3, n, K) float64
+        Radiance per unit irradiance (1/sr) per channel, surface vertex and direction.
+    directions : (K, 3) float64
+    radius_mm : (3,) float64
+        Gather radius per channel.
+    dropped_fraction : (3,) float64
+        Fraction of R_d beyond the radius.
+    seconds : dict
+        ``visibility``, ``operator``, ``gather``.
+    stats : dict
+        The operator's statistics, its entries and bytes.
+    """
+
+    q: np.ndarray
+    directions: np.ndarray
+    radius_mm: np.ndarray
+    dropped_fraction: np.ndarray
+    seconds: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+
+
+def irradiance_signal(normals: np.ndarray, directions: np.ndarray, visible: np.ndarray, eta: float) -> np.ndarray:
+    """(n, K) F_t(η, n·ω) max(0, n·ω) vis / π: what each vertex lets into the material per unit
+    irradiance from each direction."""
+    cos = np.clip(normals @ directions.T, 0.0, None)
+    return fresnel_transmittance(eta, cos) * cos * visible / np.pi
+
+
+def precompute_prt(surface: Surface, mm_per_unit: float, material: Material, directions: np.ndarray,
+                   options: PrtPrecomputeOptions = PRT_PRECOMPUTE_DEFAULTS,
+                   operator: ScatterOperator | None = None) -> PrtIntegrals:
+    """q for every surface vertex and direction.
+
+    Parameters
+    ----------
+    surface : Surface
+        Welded surface, file units.
+    mm_per_unit : float
+    material : Material
+    directions : (K, 3) float64
+        Unit directions towards the lights, in the surface's frame.
+    options : PrtPrecomputeOptions
+    operator : ScatterOperator, optional
+        A gather already built for this surface and material (sweeps reuse it).
+    """
+    if not (np.isfinite(mm_per_unit) and mm_per_unit > 0):
+        raise ValueError(f"prt: mm_per_unit must be a positive finite number, got {mm_per_unit}")
+    directions = np.asarray(directions, dtype=np.float64)
+    seconds = {}
+    t = time.perf_counter()
+    visible = direction_visibility(surface.positions, surface.faces, surface.normals, directions)
+    seconds["visibility"] = time.perf_counter() - t
+    params = DipoleParams.from_material(material)
+    t = time.perf_counter()
+    if operator is None:
+        operator = scatter_operator(surface.positions * mm_per_unit, surface.faces, surface.normals, params,
+                                    options.scatter)
+    seconds["operator"] = time.perf_counter() - t
+    t = time.perf_counter()
+    q = np.empty((3, len(surface.positions), len(directions)))
+    for s in range(0, len(directions), options.chunk):
+        block = slice(s, s + options.chunk)
+        signal = irradiance_signal(surface.normals, directions[block], visible[:, block], material.eta)
+        operator.apply(signal, out=q[:, :, block])
+        release_freed_memory()  # the threads' temporaries stay in their arenas otherwise (~0.9 GB at 150k)
+    seconds["gather"] = time.perf_counter() - t
+    stats = {**{k: v for k, v in operator.stats.items() if k != "seconds"}, "entries": operator.nnz,
+             "operator_bytes": operator.nbytes, "visible_fraction": float(visible.mean())}
+    return PrtIntegrals(q, directions, operator.radius_mm, operator.dropped_fraction, seconds, stats)

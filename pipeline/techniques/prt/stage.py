@@ -1,0 +1,90 @@
+"""The prt stage of a bake: directions → precompute → compress, for one mesh's surface."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from sssbake.pipeline.core.directions import direction_set
+from sssbake.pipeline.core.materials import Material
+from sssbake.pipeline.core.surface import Surface
+from sssbake.pipeline.mesh.baked import VertexAttribute
+from sssbake.pipeline.techniques.prt.compress import (
+    PrtCompressOptions,
+    bytes_per_vertex,
+    compress_prt,
+    decode_at_directions,
+)
+from sssbake.pipeline.techniques.prt.layout import prt_tables, prt_vertex_attributes
+from sssbake.pipeline.techniques.prt.options import PrtOptions
+from sssbake.pipeline.techniques.prt.precompute import PRT_PRECOMPUTE_DEFAULTS, precompute_prt
+from sssbake.pipeline.techniques.technique import BakeTarget, TechniqueBake
+
+
+def bake_prt(surface: Surface, mm_per_unit: float, material: Material, directions: int,
+             energy_dropped: float, compress: PrtCompressOptions) -> TechniqueBake:
+    """Run the prt technique on one welded surface.
+
+    Returns
+    -------
+    TechniqueBake
+        ``data``: the `PrtData`; ``tables``: `prt_tables`; ``report``: seconds per step, gather
+        radius and dropped fraction, bytes per vertex by block, and the compression error of q
+        (rms and max, relative to the largest q).
+    """
+    t = time.perf_counter()
+    ds = direction_set(directions)
+    scatter = replace(PRT_PRECOMPUTE_DEFAULTS.scatter, energy_dropped=energy_dropped)
+    integrals = precompute_prt(surface, mm_per_unit, material, ds.directions,
+                               replace(PRT_PRECOMPUTE_DEFAULTS, scatter=scatter))
+    t_compress = time.perf_counter()
+    prt = compress_prt(integrals.q, ds, surface.positions, surface.faces, material.eta, compress)
+    seconds = {**integrals.seconds, "compress": time.perf_counter() - t_compress}
+    error = decode_at_directions(prt)
+    error -= integrals.q  # in place: q-sized arrays are the stage's largest
+    peak = max(float(integrals.q.max()), 1e-300)
+    report = {
+        "directions": directions,
+        "mode": compress.mode,
+        "referencePoints": int(len(prt.ref_codes)),
+        "shOrder": prt.sh_order,
+        "detailOrder": prt.detail_order,
+        "weights": compress.weights,
+        "tables": compress.tables,
+        "refine": compress.refine,
+        "weightBits": prt.weight_bits,
+        "byteBudget": compress.byte_budget,
+        "radiusMm": integrals.radius_mm.tolist(),
+        "droppedFraction": integrals.dropped_fraction.tolist(),
+        "qMax": peak,
+        "compressionRmsOverMax": float(np.sqrt(np.vdot(error, error) / error.size) / peak),
+        "compressionMaxOverMax": float(max(error.max(), -error.min()) / peak),
+        "bytesPerVertex": bytes_per_vertex(prt),
+        "seconds": {k: round(v, 4) for k, v in seconds.items()} | {"total": round(time.perf_counter() - t, 4)},
+        "gather": {k: v for k, v in integrals.stats.items() if k in ("entries", "operator_bytes", "levels", "cell_mm")},
+    }
+    return TechniqueBake(prt, prt_tables(prt), report)
+
+
+class PrtStage:
+    """prt's bake hooks (`technique.Technique`)."""
+
+    # The compression simplifies the surface to reference points: no prt, no simplification.
+    dependent_stages = {"simplify": "no technique that needs reference points ran"}
+
+    def bake(self, target: BakeTarget, options: PrtOptions) -> TechniqueBake:
+        compress = options.compress()
+        baked = bake_prt(target.surface, target.mm_per_unit, target.material, options.directions,
+                         options.energy_dropped, compress)
+        total = baked.report["bytesPerVertex"]["total"]
+        if compress.byte_budget is None or total <= compress.byte_budget:
+            return baked
+        return replace(baked, warnings=(
+            f"prt takes {total:.1f} B/vertex, over its {compress.byte_budget:g} B/vertex budget: simplification "
+            f"stopped at {baked.report['referencePoints']} reference points (edge collapses on thin slabs would flip "
+            "faces)",))
+
+    def vertex_attributes(self, result: TechniqueBake, welded: np.ndarray) -> tuple[VertexAttribute, ...]:
+        return prt_vertex_attributes(result.data, welded)

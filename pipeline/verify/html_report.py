@@ -1,0 +1,187 @@
+"""``OUT/report.html``: one self-contained page per batch (``sssbake bake … --report``).
+
+Per asset: its status and warnings, the planner's decisions (``--techniques auto``), and per
+technique it baked the bytes per vertex, the bake's seconds and, verified against the offline
+reference (`plan_check.check_technique`, small images), the image RMSE, the frame times and the
+picture (reference | technique | Lambert). A bake under a budget (``--budget-rmse``) brings its
+own check's figures, and the page plots what its pilot measured per candidate beside what the full
+asset measured (`plan_check`). A Pareto plot (matplotlib) puts every verified technique of the
+batch at its bytes per vertex and frame-time ratio against its RMSE. Images are inline PNG (base64)
+and the style inline, so the page opens from anywhere, headless browsers included.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from pathlib import Path
+
+from sssbake.exporters.atomic import atomic_path
+from sssbake.pipeline.techniques.registry import BY_NAME, NAMES
+
+STYLE = """body{font-family:sans-serif;margin:2em;color:#222}table{border-collapse:collapse;margin:.5em 0}
+td,th{border:1px solid #bbb;padding:.25em .6em;text-align:left}th{background:#eee}img{max-width:100%}
+.failed{color:#b00}.asset{margin-bottom:2.5em}"""
+
+
+def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse: float | None = None) -> Path:
+    """Write ``out_dir / report.html`` for the batch `summary` (`batch.run_batch`'s) and return it.
+
+    Parameters
+    ----------
+    verify : bool
+        Render each baked technique against the offline reference (slow on big meshes); without
+        it the page shows what the bake reports alone.
+    budget_rmse : float, optional
+        Each verified row says whether its image RMSE is within it, and the page counts them (an
+        asset baked under a budget is judged by its own).
+    """
+    from sssbake.pipeline.bake.check import check_technique
+
+    out_dir = Path(out_dir)
+    sections, points = [], []
+    for record in summary["assets"]:
+        name = html.escape(record["asset"])
+        if record["status"] == "failed":
+            sections.append(f'<div class="asset"><h2>{name}</h2><p class="failed">{html.escape(record["error"])}</p></div>')
+            continue
+        glb = next(Path(p) for p in record["outputs"] if p.endswith(".glb"))
+        report = json.loads(Path(next(p for p in record["outputs"] if p.endswith(".report.json"))).read_text())
+        rows = []
+        check = report.get("check", {})
+        budget = check.get("budget", budget_rmse)
+        for technique in NAMES:
+            if not report.get(technique):
+                continue
+            figures = check.get("figures", {}).get(technique)
+            if figures is None:
+                figures = check_technique(glb, technique, report["vertices"], out_dir / ".report") if verify else {}
+            rows.append(_technique_row(technique, report, figures, budget))
+            if "rmse_image" in figures:
+                points.append((f"{Path(record['asset']).stem} {technique}", figures, budget))
+        sections.append(_asset_section(name, record, report, rows))
+    body = "".join(sections)
+    plot = _pareto(points) if points else ""
+    budgets = {b for _, _, b in points if b is not None}
+    if budgets:
+        within = sum(b is not None and f["rmse_image"] <= b for _, f, b in points)
+        plot = (f"<p>{within} of {len(points)} verified techniques within the RMSE budget "
+                f"{', '.join(f'{b:g}' for b in sorted(budgets))}.</p>") + plot
+    page = (f"<!doctype html><html><head><meta charset='utf-8'><title>sssbake batch report</title>"
+            f"<style>{STYLE}</style></head><body><h1>sssbake batch report</h1>"
+            f"<p>{summary['ok']} baked, {summary['failed']} failed in {summary['seconds']:.1f} s.</p>"
+            f"{plot}{body}</body></html>")
+    path = out_dir / "report.html"
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(page)
+    return path
+
+
+def _asset_section(name: str, record: dict, report: dict, rows: list[str]) -> str:
+    warnings = "".join(f"<li>{html.escape(w)}</li>" for w in report.get("warnings", []))
+    plan = "".join(f"<tr><td>{html.escape(e['mesh'])}</td><td>{html.escape(e['material'])}</td>"
+                   f"<td>{html.escape(', '.join(e['techniques']) or 'no SSS data')}</td>"
+                   f"<td>{html.escape('; '.join(e['reasons']))}</td></tr>" for e in report.get("plan", []))
+    plan_table = (f"<h3>Plan</h3><table><tr><th>mesh</th><th>material</th><th>techniques</th><th>reason</th></tr>"
+                  f"{plan}</table>") if plan else ""
+    if report.get("check"):
+        plan_table += _check_section(report)
+    table = ("<table><tr><th>technique</th><th>bytes / vertex</th><th>RMSE image</th><th>RMSE object</th>"
+             "<th>Lambert RMSE</th><th>frame ms (plain)</th><th>budget</th><th>reference | technique | Lambert</th></tr>"
+             f"{''.join(rows)}</table>") if rows else "<p>No technique baked: the standard fallback only.</p>"
+    check = report.get("check")
+    spent = (f" (the last of {len(check['attempts'])}; with the pilot and the checks {check['seconds']:.1f} s)"
+             if check and "seconds" in check else "")
+    return (f'<div class="asset"><h2>{name}</h2><p>{record["status"]}, bake {report.get("seconds", 0):.2f} s{spent}, '
+            f'{len(report.get("warnings", []))} warnings</p>{"<ul>" + warnings + "</ul>" if warnings else ""}'
+            f"{plan_table}{table}</div>")
+
+
+def _technique_row(technique: str, report: dict, figures: dict, budget: float | None) -> str:
+    blocks = list(report[technique].values())
+    per_vertex = BY_NAME[technique].bytes_per_vertex(blocks[0])
+    if "error" in figures or "skipped" in figures:
+        line = figures.get("error", figures.get("skipped"))
+        return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='6'>{html.escape(line)}</td></tr>"
+    if not figures:
+        return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='6'>not verified</td></tr>"
+    picture = base64.b64encode(Path(figures["pngs"]["comparison"]).read_bytes()).decode()
+    return (f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td>{figures['rmse_image']:.4f}</td>"
+            f"<td>{figures['rmse_object']:.4f}</td><td>{figures['rmse_object_lambert']:.4f}</td>"
+            f"<td>{figures['frame_ms_sss']:.1f} ({figures['frame_ms_plain']:.1f})</td>"
+            + ("<td>—</td>" if budget is None else
+               f"<td>{'within' if figures['rmse_image'] <= budget else 'over'} {budget:g}</td>") +
+            f"<td><img alt='{technique}' src='data:image/png;base64,{picture}'></td></tr>")
+
+
+def _check_section(report: dict) -> str:
+    """The budget check's attempts, and per piloted entry its pilot's RMSE per candidate against
+    the full asset's at the candidates baked."""
+    check = report["check"]
+    if not any(a["rmse_image"] for a in check["attempts"]):  # nothing baked to check
+        return ""
+    attempts = ""
+    for i, a in enumerate(check["attempts"]):
+        picks = ", ".join(f"{k}: candidate {v}" for k, v in a["picks"].items()) or "the pilot's choices"
+        errors = ", ".join(f"{t} {r:.4f}" if r is not None else f"{t} not checked" for t, r in a["rmse_image"].items())
+        attempts += (f"<tr><td>{i}{' (kept)' if i == check['kept'] else ''}</td><td>{html.escape(picks)}</td>"
+                     f"<td>{html.escape(errors)}</td></tr>")
+    verdict = {True: "within", False: "over", None: "unchecked, against"}[check["within"]]
+    text = (f"<h3>Budget check ({verdict} {check['budget']:g})</h3>"
+            f"<table><tr><th>bake</th><th>candidate picks</th><th>RMSE on the full asset</th></tr>{attempts}</table>")
+    piloted = [e for e in report.get("plan", []) if e.get("pilot")]
+    if not piloted:
+        return text
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    # wide enough for a label per candidate (prt has one per byte budget and K)
+    width = max(max(0.32 * len(e["pilot"]["candidates"]), 5.0) for e in piloted)
+    fig, axes = plt.subplots(1, len(piloted), figsize=(width * len(piloted), 4.2), squeeze=False)
+    for ax, e in zip(axes[0], piloted):
+        pilot = e["pilot"]
+        labels = [c["label"].split(" (")[0] for c in pilot["candidates"]]  # without the point count
+        measured = [(i, r["rmse_image"]) for i, r in enumerate(pilot["rows"]) if r["rmse_image"] is not None]
+        ax.plot([i for i, _ in measured], [r for _, r in measured], "o-", label=f"pilot ({pilot['vertices']} vertices)")
+        for a in check["attempts"]:
+            at = a["picks"].get(f"{e['mesh']}/{e['material']}", pilot["chosen"])
+            r = a["rmse_image"].get(pilot["candidates"][at]["technique"])
+            if r is not None:
+                ax.plot([at], [r], "rs")
+        ax.plot([], [], "rs", label="full asset")
+        ax.axhline(pilot["budget"], color="k", lw=1, ls="--", label="budget")
+        ax.set_xticks(range(len(labels)), labels, rotation=60, ha="right", fontsize=7)
+        ax.set(ylabel="image RMSE", title=f"{e['mesh']} / {e['material']}")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=80)
+    plt.close(fig)
+    return text + f"<img alt='pilot' src='data:image/png;base64,{base64.b64encode(buffer.getvalue()).decode()}'>"
+
+
+def _pareto(points: list[tuple[str, dict, float | None]]) -> str:
+    """The batch's verified techniques: RMSE against bytes per vertex and against the frame-time ratio."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for ax, key, label in ((axes[0], "bytes_per_vertex", "bytes per vertex"),
+                           (axes[1], "frame_ratio", "frame time / plain shader")):
+        for name, f, _ in points:
+            x = (f.get(key) or 0.0) if key == "bytes_per_vertex" else f["frame_ms_sss"] / max(f["frame_ms_plain"], 1e-9)
+            ax.scatter(x, f["rmse_object"])
+            ax.annotate(name, (x, f["rmse_object"]), textcoords="offset points", xytext=(4, 4), fontsize=7)
+        ax.set(xlabel=label, ylabel="image RMSE (object)", title=f"accuracy vs {label}",
+               xscale="symlog" if key == "bytes_per_vertex" else "log")
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=80)
+    plt.close(fig)
+    return f"<h2>All verified techniques</h2><img alt='Pareto' src='data:image/png;base64,{base64.b64encode(buffer.getvalue()).decode()}'>"

@@ -1,0 +1,319 @@
+"""``sssbake verify``: render an export with the shipped GLSL and the offline reference under one
+camera and light, and measure the difference (shared by every technique, through its registry
+hooks: `technique.Technique`).
+
+Per mesh instance the reference is `reference.reference_scattering` over the welded surface of
+what one draw holds (the technique's ``draw_unit``: a primitive, or all primitives of the mesh,
+which share its atlas and throughput matrix, or the surface its normals were filtered on), in the
+mesh's frame with its ``scaleMm``, mapped back to the file's render vertices. A technique whose
+data the dipole cannot describe brings its own reference (``reference_item``: lpv's grids of a
+heterogeneous field, compared with the same field at twice the resolution, "lpv 2x").
+
+Lambert images (the baseline, and spectral's subsurface normals, which the runtime shades with the
+plain Lambert shader) are per-vertex clamped cosines times shadow visibility, drawn as q, each
+scaled by its per-channel least-squares fit to the reference: a normal field sets where light
+lands, not the material's albedo.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+
+from sssbake.pipeline.core.materials import Material
+from sssbake.pipeline.core.reference import Light, reference_scattering
+from sssbake.pipeline.core.visibility import direction_visibility, point_visibility
+from sssbake.pipeline.mesh.clean import WELD_TOLERANCE, weld_surface
+from sssbake.pipeline.mesh.load import load_scene
+from sssbake.pipeline.render.image_metrics import (
+    best_fit_scale,
+    rmse,
+    shared_exposure,
+    write_comparison_png,
+    write_difference_png,
+)
+from sssbake.pipeline.render.items import PLAIN_ALBEDO, merged_primitive
+from sssbake.pipeline.render.renderer import DEFAULT_LIGHT, Renderer, RenderLight, fit_camera
+from sssbake.pipeline.techniques.registry import BY_NAME, NAMES
+from sssbake.pipeline.techniques.technique import VerifyShot, VerifyUnit
+
+REFERENCES = ("exact", "clustered")
+
+
+def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT, size: int = 512,
+                out_dir: str | os.PathLike | None = None, frames: int = 20, light_pos=None,
+                reference_sum: str = "exact", lpv_steps: int | None = None, stock_viewer: bool = False) -> dict:
+    """Render `path` (.glb) with `technique`'s runtime and with the offline reference.
+
+    Parameters
+    ----------
+    light_dir : (3,) float
+        World direction towards a directional light of unit irradiance.
+    light_pos : (3,) float, optional
+        World position of a point light instead (world units; the meshes' world transforms must
+        not scale). Its intensity gives unit irradiance at the centre of the objects' bounds.
+    reference_sum : str
+        ``"exact"`` (every pair) or ``"clustered"`` (far sources through float64 clusters, ~1e-3
+        of q; for meshes of 100k+ vertices, where the exact sum takes hours; see
+        `reference.reference_scattering`).
+    lpv_steps : int, optional
+        lpv: propagation steps per frame (default: the runtime's, `lpv_propagate.LPV_DEFAULTS`).
+    stock_viewer : bool
+        Also render what a stock glTF viewer shows (`stock_figures`).
+    size : int
+        Image width and height in pixels.
+    out_dir : path, optional
+        Where the PNGs go (default: next to the file).
+
+    Returns
+    -------
+    dict
+        ``technique``, ``light_dir`` (towards the light from the objects' centre), ``light_pos``
+        (None for a directional light), ``reference`` (`reference_sum`, or the technique's
+        ``self_reference_label`` where it compared with its own reference; see
+        `reference_label`), ``rmse_image``, ``rmse_object``, ``rmse_object_lambert``,
+        ``lambert_scale``, ``bytes_per_vertex``, ``bake_seconds``, ``frame_ms_sss``,
+        ``frame_ms_plain``, ``reference_seconds``, ``exposure``, ``image_size``, ``pngs``, and
+        the technique's own figures (``verify_figures``): spectral ``spectral_scale`` (the fit
+        applied to its image), ``rmse_object_naive`` and ``naive_scale`` (Patro's naive normals,
+        computed here from the file's geometry and material with the precompute's defaults), its
+        ``frame_ms_sss`` the plain shader's with the subsurface normals; screen where screen
+        space misses light (`screen_verify.screen_misses`): ``low_share_pixels``,
+        ``missed_share``, ``missed_share_unlit``, ``missed_share_low_share``,
+        ``bytes_per_material``; lpv where light leaks (`lpv_verify.lpv_leaks`): ``excess_share``,
+        ``excess_share_unlit``, ``thin_cells``, ``lpv_steps``, ``bytes_per_mesh``. With a
+        self-convergence reference also ``reference_resolution`` and ``reference_steps`` (its
+        finest grid and its steps); with `stock_viewer` `stock_figures`' keys and
+        ``pngs["stock"]``.
+    """
+    if reference_sum not in REFERENCES:
+        raise ValueError(f"verify: reference must be one of {list(REFERENCES)}, got {reference_sum!r}")
+    if technique not in NAMES:
+        raise ValueError(f"verify: technique must be one of {list(NAMES)}, got {technique!r}")
+    hooks = BY_NAME[technique]
+    path = Path(path)
+    light_world = np.asarray(light_dir, dtype=np.float64)
+    if light_world.shape != (3,) or not np.all(np.isfinite(light_world)) or not np.linalg.norm(light_world) > 0:
+        raise ValueError(f"verify: light direction must be three finite numbers, not all zero, got {light_dir}")
+    light_world = light_world / np.linalg.norm(light_world)
+    point = None if light_pos is None else np.asarray(light_pos, dtype=np.float64)
+    if point is not None and (point.shape != (3,) or not np.all(np.isfinite(point))):
+        raise ValueError(f"verify: light position must be three finite numbers, got {light_pos}")
+    data = hooks.read(path)
+    gltf = pygltflib.GLTF2.load(str(path))
+    scene = load_scene(str(path))
+    instances = []
+    for mi, worlds in sorted(scene.mesh_instances().items()):
+        held = [pi for pi in range(len(scene.meshes[mi].primitives)) if (mi, pi) in data]
+        units = [[pi] for pi in held] if hooks.draw_unit == "primitive" else ([held] if held else [])
+        instances += [(mi, unit, world) for unit in units for world in worlds]
+    if not instances:
+        raise ValueError(f"verify: {path} has no drawable primitive with {technique} data")
+    mm_world = {float((gltf.meshes[mi].extras or {}).get("sssbake", {})["scaleMm"]) for mi, _, _ in instances}
+    if point is not None:
+        scales = [abs(np.linalg.det(world[:3, :3])) for _, _, world in instances]
+        if len(mm_world) > 1 or not np.allclose(scales, 1.0, rtol=1e-6):
+            raise ValueError(f"verify: {path}: a point light needs one scaleMm and unscaled world transforms")
+        points = np.concatenate([(w[:3, :3] @ scene.meshes[mi].primitives[pi].positions.T).T + w[:3, 3]
+                                 for mi, unit, w in instances for pi in unit])
+        centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+        if not np.linalg.norm(point - centre) > 0:
+            raise ValueError(f"verify: the point light sits at the objects' centre {centre.tolist()}; move it")
+        light_world = (point - centre) / np.linalg.norm(point - centre)
+        intensity = float(np.linalg.norm(point - centre) * next(iter(mm_world))) ** 2
+
+    drawn, sss_items, timed_items, ref_items, lambert_items = [], [], [], [], []
+    self_references, dipole_references = [], 0  # (resolution, steps) of each self-reference
+    runtime, memo = {"lpv_steps": lpv_steps}, {}  # the hooks' settings and what they keep across units
+    t_ref = time.perf_counter()
+    for mi, unit, world in instances:
+        prims = [scene.meshes[mi].primitives[pi] for pi in unit]
+        prim = merged_primitive(prims)
+        material = _material(gltf, prims[0].material, path)
+        mm = float(gltf.meshes[mi].extras["sssbake"]["scaleMm"])
+        # Seam vertices share positions: weld them, or a zero distance would read Rd(0).
+        diagonal = float(np.linalg.norm(np.ptp(prim.positions, axis=0)))
+        surface = weld_surface([prim], WELD_TOLERANCE * diagonal)
+        weld = surface.weld[0]
+        linear = world[:3, :3]
+        if point is None:
+            omega = np.linalg.solve(linear, light_world)
+            omega /= np.linalg.norm(omega)
+            light = Light("directional", tuple(omega))
+            visible = direction_visibility(surface.positions, surface.faces, surface.normals, omega[None])[weld, 0]
+            towards, weight = omega[None], visible
+        else:
+            local = np.linalg.solve(linear, point - world[:3, 3])
+            light = Light("point", position=tuple(local), intensity=intensity)
+            visible = point_visibility(surface.positions, surface.faces, surface.normals, local)[weld]
+            to_light = local - prim.positions
+            distance = np.linalg.norm(to_light, axis=1)
+            towards = to_light / np.maximum(distance, 1e-300)[:, None]
+            weight = visible * intensity / np.maximum(distance * mm, 1e-300) ** 2
+        base = dict(positions=prim.positions, normals=prim.normals, faces=prim.faces, model=world, eta=material.eta)
+        at = VerifyUnit(mi, tuple(unit), prim, surface, weld, mm, material, gltf.meshes[mi].extras["sssbake"], base,
+                        partial(_lambert_q, towards=towards, weight=weight))
+        own = hooks.reference_item(path, at, data, runtime, memo)
+        if own is not None:
+            ref_items.append(own[0])
+            self_references.append(own[1])
+        else:
+            ref = reference_scattering(surface, mm, material, light, clustered=reference_sum == "clustered")[:, weld]
+            ref_items.append({**base, "q": ref.T})
+            dipole_references += 1
+        compared, timed = hooks.verify_items(at, data, runtime)
+        drawn.append(at)
+        sss_items.append(compared)
+        timed_items.append(timed)
+        lambert_items.append({**base, "q": at.lambert_q(prim.normals)})
+    reference_seconds = time.perf_counter() - t_ref
+    if not self_references and not any(np.any(it["q"] > 0) for it in ref_items):
+        raise ValueError(f"verify: {path}: the light reaches no vertex (inside the object, or behind it)")
+
+    renderer = Renderer((size, size))
+    world_points = np.concatenate([(it["model"][:3, :3] @ it["positions"].T).T + it["model"][:3, 3] for it in sss_items])
+    camera = fit_camera(world_points)
+    if point is None:
+        light = RenderLight(False, tuple(light_world), 1.0)
+    else:
+        light = RenderLight(True, tuple(point), intensity, next(iter(mm_world)))
+    image, mask = renderer.render(sss_items, camera, light)
+    reference, ref_mask = renderer.render(ref_items, camera, light)
+    if self_references and not np.any(reference[ref_mask] > 0):
+        raise ValueError(f"verify: {path}: the light reaches no cell (inside the object, or behind it)")
+    exposure = shared_exposure(reference, ref_mask)
+
+    def fitted(drawn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W, 3) `drawn` times its per-channel best fit (3,) to the reference, and the fit."""
+        fit = best_fit_scale(drawn, reference, ref_mask)
+        return drawn * fit, fit
+
+    lambert, scale = fitted(renderer.render(lambert_items, camera, light)[0])
+    shot = VerifyShot(renderer, camera, light, image, reference, ref_mask, ref_mask | mask, exposure, lambert > 0,
+                      fitted)
+    image, pictures, extra = hooks.verify_figures(drawn, sss_items, shot)
+    shown = [reference, image, lambert, *pictures]
+
+    out_dir = Path(out_dir) if out_dir is not None else path.parent
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = f"{path.stem}.verify.{technique}"
+    pngs = {"comparison": str(out_dir / f"{stem}.png"), "difference": str(out_dir / f"{stem}.diff.png")}
+    write_comparison_png(pngs["comparison"], shown, exposure)
+    write_difference_png(pngs["difference"], image, reference, exposure)
+    if stock_viewer:
+        pngs["stock"] = str(out_dir / f"{stem}.stock.png")
+        extra.update(stock_figures(path, [it["positions"] for it in sss_items], camera, light, size, reference,
+                                   ref_mask, exposure, pngs["stock"]))
+
+    report = _bake_report(path)
+    technique_reports = list(report.get(technique, {}).values())
+    plain_items = [{k: v for k, v in it.items() if k != "q"} | {"albedo": PLAIN_ALBEDO} for it in lambert_items]
+    return {
+        "technique": technique,
+        "light_dir": light_world.tolist(),
+        "light_pos": None if point is None else point.tolist(),
+        "reference": reference_label(reference_sum, dipole_references, len(self_references),
+                                     hooks.self_reference_label),
+        "rmse_image": rmse(image, reference, exposure),
+        "rmse_object": rmse(image, reference, exposure, ref_mask | mask),
+        "rmse_object_lambert": rmse(lambert, reference, exposure, ref_mask),
+        "lambert_scale": scale.tolist(),
+        "bytes_per_vertex": hooks.bytes_per_vertex(technique_reports[0]) if technique_reports else None,
+        "bake_seconds": report.get("seconds"),
+        # the technique's runtime as it ships (spectral's: the plain shader fed the subsurface normals)
+        "frame_ms_sss": renderer.frame_ms(timed_items, camera, light, frames),
+        # plain: the standard Lambert + specular shader, no SSS data
+        "frame_ms_plain": renderer.frame_ms(plain_items, camera, light, frames),
+        "reference_seconds": reference_seconds,
+        "exposure": exposure,
+        "image_size": [size, size],
+        "pngs": pngs,
+        **extra,
+        **({"reference_resolution": max(r for r, _ in self_references),
+            "reference_steps": max(st for _, st in self_references)} if self_references else {}),
+    }
+
+
+def reference_label(reference_sum: str, dipoles: int, self_references: int, self_label: str | None) -> str:
+    """The ``reference`` of `verify_file`: `reference_sum` when every instance is compared with the
+    dipole, the technique's `self_label` when every one with its own reference, both (``"; "``)
+    when mixed."""
+    if not self_references:
+        return reference_sum
+    return self_label if not dipoles else f"{reference_sum} (homogeneous meshes); {self_label}"
+
+
+def stock_figures(path: Path, positions: list[np.ndarray], camera, light, size: int, reference: np.ndarray,
+                  mask: np.ndarray, exposure: float, png: str) -> dict:
+    """What a stock glTF viewer shows (pyrender: `stock_viewer.render_stock_viewer`) of `path`'s
+    fallback material and of the spectral normals variant ``<stem>.sss_normals.glb`` when the bake
+    wrote one, against verify's reference, unscaled: a viewer shows the base colour as it is.
+
+    Parameters
+    ----------
+    positions : list of (n, 3) float
+        The vertex positions of the primitives verify compares (the stock pictures draw those alone).
+    camera, light : Camera, RenderLight
+        verify's.
+    reference : (H, W, 3) float32
+    mask : (H, W) bool
+        The reference's coverage.
+    exposure : float
+        verify's shared exposure.
+    png : str
+        Where reference | stock | stock variant (without one: reference | stock) go.
+
+    Returns
+    -------
+    dict
+        ``rmse_object_stock`` (over the reference's or the stock image's pixels), ``stock_scale``
+        (3,) (the per-channel best fit of the stock image to the reference, not applied: how far
+        the viewer's brightness is off), ``stock_variant`` (the variant's path, None without one),
+        ``rmse_object_stock_variant`` (None without one), ``stock_seconds`` (the renders, with
+        pyrender's import on a process's first call).
+    """
+    from sssbake.pipeline.render.stock_viewer import render_stock_viewer
+
+    t = time.perf_counter()
+    stock, covered = render_stock_viewer(path, camera, light, size, exposure, positions)
+    variant = path.with_suffix(".sss_normals.glb")
+    shown, figures = [reference, stock], {"stock_variant": None, "rmse_object_stock_variant": None}
+    if variant.is_file():
+        normals, normals_covered = render_stock_viewer(variant, camera, light, size, exposure, positions)
+        shown.append(normals)
+        figures = {"stock_variant": str(variant),
+                   "rmse_object_stock_variant": rmse(normals, reference, exposure, mask | normals_covered)}
+    seconds = time.perf_counter() - t
+    write_comparison_png(png, shown, exposure)
+    return {"rmse_object_stock": rmse(stock, reference, exposure, mask | covered),
+            "stock_scale": best_fit_scale(stock, reference, mask).tolist(), **figures, "stock_seconds": seconds}
+
+
+def _lambert_q(field: np.ndarray, towards: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """(n, 3) grey q of unit normals `field` (n, 3) at the render vertices: clip(n · towards, 0) ·
+    weight, `towards` (1, 3) or (n, 3) unit vectors to the light, `weight` (n,) its visible
+    irradiance."""
+    return np.repeat((np.clip(np.sum(field * towards, axis=1), 0.0, None) * weight)[:, None], 3, axis=1)
+
+
+def _material(gltf: pygltflib.GLTF2, index: int | None, path: Path) -> Material:
+    data = None
+    if index is not None:
+        data = ((gltf.materials[index].extras or {}).get("sssbake") or {}).get("material")
+    if not data:
+        raise ValueError(f"verify: {path}: a scattering primitive's material has no extras.sssbake.material")
+    return Material(data["name"], tuple(data["sigma_s_prime"]), tuple(data["sigma_a"]), float(data["eta"]))
+
+
+def _bake_report(path: Path) -> dict:
+    report = path.with_suffix(".report.json")
+    try:
+        return json.loads(report.read_text())
+    except (OSError, ValueError):
+        return {}

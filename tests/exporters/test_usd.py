@@ -1,0 +1,318 @@
+"""USD export: geometry, sssbake primvars, materials and stage metadata survive a round trip."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import trimesh
+from fixtures import FALLBACK
+from pxr import Usd, UsdGeom, UsdShade
+
+from sssbake.exporters.usd import meters_per_unit, write_usdc
+from sssbake.pipeline.core.materials import preset
+from sssbake.pipeline.mesh.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
+from sssbake.pipeline.mesh.scene import Mesh, Node, Primitive, Scene, SourceMaterial
+
+
+def icosphere_asset(subdivisions: int = 1, extras: dict | None = None) -> BakedAsset:
+    """A marble icosphere (mesh 0, translucent material 0, attributes ``thickness`` (n,) and
+    ``direction`` (n, 3)) under a scaled root node, and an opaque triangle (mesh 1, material 1) in a
+    translated child node."""
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    v = np.asarray(sphere.vertices, dtype=np.float64)
+    n = len(v)
+    uv0 = np.c_[0.5 + np.arctan2(v[:, 1], v[:, 0]) / (2 * np.pi), 0.5 - np.arcsin(np.clip(v[:, 2], -1, 1)) / np.pi]
+    sphere_prim = Primitive(v, np.asarray(sphere.faces), normals=np.asarray(sphere.vertex_normals) * 3.0,
+                            uvs=(uv0, uv0 * 0.5 + 0.25), colors=np.c_[np.abs(v), np.linspace(0, 1, n)], material=0)
+    tri = Primitive(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]),
+                    normals=np.array([[0.0, 0, 1]] * 3), uvs=(np.array([[0.0, 0], [1, 0], [0, 1]]),), material=1)
+    child = np.eye(4)
+    child[:3, 3] = (3.0, -1.0, 0.5)
+    scene = Scene(
+        source="memory",
+        meshes=(Mesh("sphere", (sphere_prim,)), Mesh("plate", (tri,))),
+        nodes=(Node("root", np.diag([2.0, 2.0, 2.0, 1.0]), mesh=0, children=(1,)), Node("plate", child, mesh=1)),
+        roots=(0,),
+        materials=(
+            SourceMaterial("Marble", base_color_factor=(0.2, 0.3, 0.4, 1.0), roughness_factor=0.3),
+            SourceMaterial("Steel", base_color_factor=(0.5, 0.5, 0.5, 0.8), metallic_factor=1.0,
+                           emissive_factor=(0.1, 0.2, 0.3), double_sided=True, ior=1.4),
+        ),
+    )
+    t = np.linspace(0.0, 1.0, n)
+    attrs = (
+        VertexAttribute("thickness", 2.0 * np.sin(7 * t) ** 2, "mm", "float32", "thickness along -n"),
+        VertexAttribute("direction", np.c_[np.cos(5 * t), -np.sin(3 * t), t * 2 - 1], "", "snorm8", "unit vector"),
+    )
+    return BakedAsset(
+        scene=scene,
+        vertex_attributes={(0, 0): attrs},
+        scattering={0: ScatteringMaterial(preset("marble"), FALLBACK, "Marble")},
+        scale_mm={0: 10.0, 1: 10.0},
+        extras={"scaleSource": "test", "thickness": {"unit": "mm"}} if extras is None else extras,
+    )
+
+
+def with_attributes(asset: BakedAsset, *attrs: VertexAttribute) -> BakedAsset:
+    return replace(asset, vertex_attributes={(0, 0): attrs})
+
+
+def test_geometry_and_primvars_round_trip_exactly(tmp_path):
+    asset = icosphere_asset()
+    summary = write_usdc(asset, tmp_path / "marble.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "marble.usdc"))
+    prim_in = asset.scene.meshes[0].primitives[0]
+    n = len(prim_in.positions)
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/marble/root/sphere"))
+    assert mesh
+
+    points = np.asarray(mesh.GetPointsAttr().Get())
+    np.testing.assert_array_equal(points, prim_in.positions.astype(np.float32))
+    np.testing.assert_array_equal(np.asarray(mesh.GetFaceVertexIndicesAttr().Get()), prim_in.faces.reshape(-1))
+    np.testing.assert_array_equal(np.asarray(mesh.GetFaceVertexCountsAttr().Get()), np.full(len(prim_in.faces), 3))
+    normals = prim_in.normals / np.linalg.norm(prim_in.normals, axis=1, keepdims=True)
+    np.testing.assert_array_equal(np.asarray(mesh.GetNormalsAttr().Get()), normals.astype(np.float32))
+    assert mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex
+    assert mesh.GetSubdivisionSchemeAttr().Get() == UsdGeom.Tokens.none
+    np.testing.assert_array_equal(np.asarray(mesh.GetExtentAttr().Get()),
+                                  [points.min(axis=0), points.max(axis=0)])
+
+    api = UsdGeom.PrimvarsAPI(mesh)
+    for name, uv in (("st", prim_in.uvs[0]), ("st1", prim_in.uvs[1])):
+        pv = api.GetPrimvar(name)
+        assert pv.GetInterpolation() == UsdGeom.Tokens.vertex and str(pv.GetTypeName()) == "texCoord2f[]"
+        uv32 = uv.astype(np.float32)
+        np.testing.assert_array_equal(np.asarray(pv.Get()), np.c_[uv32[:, 0], np.float32(1) - uv32[:, 1]])
+    np.testing.assert_array_equal(np.asarray(api.GetPrimvar("displayColor").Get()),
+                                  prim_in.colors[:, :3].astype(np.float32))
+
+    thickness, direction = asset.vertex_attributes[(0, 0)]
+    pv = api.GetPrimvar("sss:thickness")
+    assert pv.GetName() == thickness.usd_name == "primvars:sss:thickness"
+    assert str(pv.GetTypeName()) == "float[]" and pv.GetInterpolation() == UsdGeom.Tokens.vertex
+    assert pv.GetElementSize() == 1 and not pv.HasAuthoredElementSize()
+    np.testing.assert_array_equal(np.asarray(pv.Get()), thickness.data.astype(np.float32))
+    assert pv.GetAttr().GetCustomData() == {"unit": "mm", "description": "thickness along -n"}
+    assert pv.GetAttr().GetDocumentation() == "thickness along -n"
+    pv = api.GetPrimvar("sss:direction")
+    assert pv.GetElementSize() == 3 and len(pv.Get()) == 3 * n
+    np.testing.assert_array_equal(np.asarray(pv.Get()).reshape(n, 3), direction.data.astype(np.float32))
+    assert mesh.GetPrim().GetAttribute("sss:scaleMm").Get() == 10.0
+
+    assert summary["vertices"] == n + 3 and summary["faces"] == len(prim_in.faces) + 1
+    assert summary["blocks"]["primvars:sss:thickness"] == 4 * n
+    assert summary["blocks"]["primvars:sss:direction"] == 12 * n
+    assert summary["bytes_per_vertex"]["primvars:sss:direction"] == 12.0
+    assert summary["bytes_per_vertex"]["sssbake"] == pytest.approx(16 * n / (n + 3))
+    assert summary["bytes"] == (tmp_path / "marble.usdc").stat().st_size
+    assert (tmp_path / "marble.usdc").read_bytes()[:8] == b"PXR-USDC"
+
+
+def test_stage_metadata_hierarchy_and_extras(tmp_path):
+    asset = icosphere_asset(extras={"lut": np.arange(6.0).reshape(3, 2), "ids": np.array([1, 2]), "k": 1.5})
+    write_usdc(asset, tmp_path / "a b-1.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "a b-1.usdc"))
+    root = stage.GetDefaultPrim()
+    assert root.GetName() == "a_b_1" and root.IsA(UsdGeom.Xform)
+    assert Usd.ModelAPI(root).GetKind() == "component"
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
+    assert UsdGeom.StageHasAuthoredMetersPerUnit(stage) and UsdGeom.GetStageMetersPerUnit(stage) == 0.01
+    assert root.GetAttribute("sss:schemaVersion").Get() == SCHEMA_VERSION
+
+    extras = json.loads(root.GetAttribute("sss:extras").Get())
+    assert extras["k"] == 1.5
+    lut = root.GetAttribute(extras["lut"]["attribute"])
+    np.testing.assert_array_equal(np.asarray(lut.Get()).reshape(extras["lut"]["shape"]), np.arange(6.0).reshape(3, 2))
+    assert str(root.GetAttribute(extras["ids"]["attribute"]).GetTypeName()) == "uint[]"
+
+    worlds = asset.scene.world_matrices()
+    cache = UsdGeom.XformCache()
+    for index, path in ((0, "/a_b_1/root"), (1, "/a_b_1/root/plate")):
+        usd = np.array(cache.GetLocalToWorldTransform(stage.GetPrimAtPath(path)))
+        np.testing.assert_array_equal(usd.T, worlds[index])
+    assert stage.GetPrimAtPath("/a_b_1/root/plate/plate").IsA(UsdGeom.Mesh)
+
+
+def test_materials_and_bindings(tmp_path):
+    write_usdc(icosphere_asset(), tmp_path / "m.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "m.usdc"))
+    sphere = stage.GetPrimAtPath("/m/root/sphere")
+    plate = stage.GetPrimAtPath("/m/root/plate/plate")
+    assert sphere.HasAPI(UsdShade.MaterialBindingAPI) and plate.HasAPI(UsdShade.MaterialBindingAPI)
+    marble = UsdShade.MaterialBindingAPI(sphere).ComputeBoundMaterial()[0]
+    steel = UsdShade.MaterialBindingAPI(plate).ComputeBoundMaterial()[0]
+    assert marble.GetPath() == "/m/Materials/Marble" and steel.GetPath() == "/m/Materials/Steel"
+
+    shader = marble.ComputeSurfaceSource()[0]
+    assert shader.GetIdAttr().Get() == "UsdPreviewSurface"
+    np.testing.assert_array_equal(shader.GetInput("diffuseColor").Get(), np.float32(FALLBACK.base_color))
+    assert shader.GetInput("roughness").Get() == np.float32(0.3) and shader.GetInput("ior").Get() == 1.5
+    m = marble.GetPrim()
+    mat = preset("marble")
+    assert m.GetAttribute("sss:schemaVersion").Get() == SCHEMA_VERSION
+    assert m.GetAttribute("sss:units").Get() == "1/mm"
+    np.testing.assert_array_equal(m.GetAttribute("sss:sigmaSPrime").Get(), np.float32(mat.sigma_s_prime))
+    np.testing.assert_array_equal(m.GetAttribute("sss:sigmaA").Get(), np.float32(mat.sigma_a))
+    assert m.GetAttribute("sss:eta").Get() == np.float32(mat.eta)
+    assert m.GetAttribute("sss:fallback:thicknessFactor").Get() == 2.0
+    assert m.GetAttribute("sss:fallback:attenuationDistance").Get() == 4.0
+    np.testing.assert_array_equal(m.GetAttribute("sss:fallback:attenuationColor").Get(), np.float32((0.9, 0.8, 0.7)))
+    assert not UsdGeom.Mesh(sphere).GetDoubleSidedAttr().Get()
+
+    s = steel.ComputeSurfaceSource()[0]
+    np.testing.assert_array_equal(s.GetInput("diffuseColor").Get(), np.float32((0.5, 0.5, 0.5)))
+    assert s.GetInput("opacity").Get() == np.float32(0.8) and s.GetInput("metallic").Get() == 1.0
+    assert s.GetInput("ior").Get() == np.float32(1.4)
+    assert not steel.GetPrim().GetAttribute("sss:sigmaA")
+    assert UsdGeom.Mesh(plate).GetDoubleSidedAttr().Get()
+
+
+def test_infinite_attenuation_distance_is_left_out(tmp_path):
+    asset = icosphere_asset()
+    fb = replace(FALLBACK, attenuation_distance=float("inf"))
+    asset = replace(asset, scattering={0: ScatteringMaterial(preset("marble"), fb, "Marble")})
+    write_usdc(asset, tmp_path / "a.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "a.usdc"))
+    m = stage.GetPrimAtPath("/a/Materials/Marble")
+    assert not m.GetAttribute("sss:fallback:attenuationDistance").HasAuthoredValue()
+
+
+def test_meters_per_unit_and_up_axis(tmp_path):
+    asset = icosphere_asset()
+    assert meters_per_unit(asset) == 0.01
+    assert meters_per_unit(replace(asset, scene=replace(asset.scene, meters_per_unit=0.0254))) == 0.0254
+    assert meters_per_unit(replace(asset, scale_mm={})) == 1.0
+    z_up = replace(asset, scene=replace(asset.scene, up_axis="Z", meters_per_unit=1.0))
+    write_usdc(z_up, tmp_path / "z.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "z.usdc"))
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z and UsdGeom.GetStageMetersPerUnit(stage) == 1.0
+
+
+def test_names_are_made_valid_and_unique(tmp_path):
+    asset = icosphere_asset()
+    scene = asset.scene
+    nodes = (replace(scene.nodes[0], name="1 bad name", children=(1, 2)), replace(scene.nodes[1], name="x"),
+             replace(scene.nodes[1], name="x"))
+    scene = replace(scene, nodes=nodes, materials=(replace(scene.materials[0], name="a"),
+                                                   replace(scene.materials[1], name="a")))
+    write_usdc(replace(asset, scene=scene), tmp_path / "n.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "n.usdc"))
+    assert stage.GetPrimAtPath("/n/_1_bad_name/x/plate") and stage.GetPrimAtPath("/n/_1_bad_name/x_1/plate")
+    assert stage.GetPrimAtPath("/n/Materials/a") and stage.GetPrimAtPath("/n/Materials/a_1")
+
+
+@pytest.mark.parametrize("data", [np.ones(5), np.ones((7, 3))], ids=["short", "long"])
+def test_element_count_mismatch_raises(tmp_path, data):
+    asset = with_attributes(icosphere_asset(), VertexAttribute("bad", data))
+    with pytest.raises(ValueError, match=r"primvars:sss:bad has \d+ elements, expected 42 points"):
+        write_usdc(asset, tmp_path / "a.usdc")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("what", ["attribute", "position", "scale", "material", "overflow"])
+def test_non_finite_raises_and_leaves_nothing(tmp_path, what):
+    asset = icosphere_asset()
+    n = len(asset.scene.meshes[0].primitives[0].positions)
+    if what == "attribute":
+        asset = with_attributes(asset, VertexAttribute("t", np.r_[np.nan, np.ones(n - 1)]))
+    elif what == "overflow":
+        asset = with_attributes(asset, VertexAttribute("t", np.r_[1e39, np.ones(n - 1)]))
+    elif what == "position":
+        prim = asset.scene.meshes[1].primitives[0]
+        bad = replace(prim, positions=np.r_[prim.positions[:2], [[np.inf, 0, 0]]])
+        asset = replace(asset, scene=replace(asset.scene, meshes=(asset.scene.meshes[0], Mesh("plate", (bad,)))))
+    elif what == "scale":
+        asset = replace(asset, scale_mm={0: float("nan")})
+    else:
+        fb = replace(FALLBACK, thickness_factor=float("inf"))
+        asset = replace(asset, scattering={0: ScatteringMaterial(preset("marble"), fb, "Marble")})
+    with pytest.raises(ValueError, match="not finite|non-finite"):
+        write_usdc(asset, tmp_path / "a.usdc")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failed_write_keeps_previous_file(tmp_path):
+    target = tmp_path / "a.usdc"
+    write_usdc(icosphere_asset(), target)
+    before = target.read_bytes()
+    with pytest.raises(ValueError):
+        write_usdc(with_attributes(icosphere_asset(), VertexAttribute("t", np.full(42, np.nan))), target)
+    assert target.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["a.usdc"]
+
+
+def test_bad_references_raise(tmp_path):
+    asset = icosphere_asset()
+    with pytest.raises(ValueError, match="mesh 5 primitive 0"):
+        write_usdc(replace(asset, vertex_attributes={(5, 0): ()}), tmp_path / "a.usdc")
+    with pytest.raises(ValueError, match=r"materials \[7\]"):
+        write_usdc(replace(asset, scattering={7: asset.scattering[0]}), tmp_path / "a.usdc")
+    prim = asset.scene.meshes[1].primitives[0]
+    bad = replace(prim, faces=np.array([[0, 1, 3]]))
+    with pytest.raises(ValueError, match="face indices outside"):
+        write_usdc(replace(asset, scene=replace(asset.scene, meshes=(asset.scene.meshes[0], Mesh("p", (bad,))))),
+                   tmp_path / "a.usdc")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_mesh_extras_tables_and_integer_primvars(tmp_path):
+    asset = icosphere_asset()
+    n = len(asset.scene.meshes[0].primitives[0].positions)
+    codes = (np.arange(24) % 256).astype(np.uint8).reshape(8, 3)
+    index = VertexAttribute("sss:prt:ref", np.c_[np.arange(n) % 5, np.full(n, 65535)], "", "uint16", "indices")
+    asset = replace(asset, vertex_attributes={(0, 0): (index,)},
+                    mesh_extras={0: {"prt": {"codes": codes, "scale": np.array([0.5, -2.0]), "order": 2}}})
+    write_usdc(asset, tmp_path / "m.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "m.usdc"))
+    prim = stage.GetPrimAtPath("/m/root/sphere")
+    extras = json.loads(prim.GetAttribute("sss:extras").Get())
+    assert extras["prt"]["order"] == 2
+    table = prim.GetAttribute(extras["prt"]["codes"]["attribute"])
+    assert str(table.GetTypeName()) == "uchar[]"
+    np.testing.assert_array_equal(np.asarray(table.Get()).reshape(extras["prt"]["codes"]["shape"]), codes)
+    primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("sss:prt:ref")
+    assert str(primvar.GetTypeName()) == "int[]" and primvar.GetElementSize() == 2
+    np.testing.assert_array_equal(np.asarray(primvar.Get()).reshape(n, 2), index.data)
+
+
+def test_spectral_normal_primvar_and_tables(tmp_path):
+    from test_gltf import spectral_parts
+
+    from sssbake.exporters.usd import technique_tables
+
+    asset = icosphere_asset()
+    normals, attrs, tables = spectral_parts(asset.scene.meshes[0].primitives[0])
+    write_usdc(replace(asset, vertex_attributes={(0, 0): attrs}, mesh_extras={0: {"spectral": tables}}),
+               tmp_path / "s.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "s.usdc"))  # held: its prims die with it
+    prim = stage.GetPrimAtPath("/s/root/sphere")
+    primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("sss:normal")
+    values = np.asarray(primvar.Get())
+    assert str(primvar.GetTypeName()) == "float[]" and primvar.GetElementSize() == 3
+    assert primvar.GetInterpolation() == UsdGeom.Tokens.vertex and values.shape == (3 * len(normals),)
+    np.testing.assert_array_equal(values.reshape(-1, 3), normals.astype(np.float32))
+    read = technique_tables(prim, "spectral")
+    for name, value in tables.items():
+        np.testing.assert_array_equal(read[name], value)
+
+
+def test_screen_tables_are_attributes_of_the_material_prim(tmp_path):
+    from fixtures import bake_screen_sphere
+
+    from sssbake.exporters.usd import technique_tables
+    from sssbake.pipeline.techniques.screen.samples import screen_samples
+
+    _, options = bake_screen_sphere(tmp_path, screen_uniform=0)
+    stage = Usd.Stage.Open(str(tmp_path / "ball.usdc"))  # held: its prims die with it
+    (material,) = [p for p in stage.Traverse() if p.IsA(UsdShade.Material) and p.GetAttribute("sss:extras")]
+    expected = screen_samples(preset("marble"), options.technique_options("screen").samples_options())
+    for name, value in (("offsets", expected.offsets), ("weights", expected.weights), ("rdTable", expected.table.T)):
+        attribute = material.GetAttribute("sss:screen:" + name)
+        assert str(attribute.GetTypeName()) == "float[]"
+        assert list(attribute.GetCustomData()["shape"]) == list(value.shape)
+        np.testing.assert_array_equal(np.asarray(attribute.Get()).reshape(value.shape), value.astype(np.float32))
+    tables = technique_tables(material, "screen")
+    assert (tables["technique"], tables["samples"], tables["uniform"]) == ("screen", options.screen_samples, 0)
+    np.testing.assert_array_equal(tables["weights"], expected.weights.astype(np.float32))
+    assert tables["tableError"] == expected.table_error
+    assert material.GetAttribute("sss:materialName").Get() == "marble"

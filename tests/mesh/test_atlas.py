@@ -1,0 +1,118 @@
+import resource
+
+import numpy as np
+import pytest
+import trimesh
+import xatlas
+
+from sssbake.pipeline.mesh.atlas import DIAGONAL, AtlasError, compute_atlas
+from sssbake.pipeline.mesh.atlas_worker import CRASH_ENV
+
+
+@pytest.fixture(scope="module")
+def parts():
+    sphere = trimesh.creation.icosphere(2)
+    box = trimesh.creation.box(extents=(1.0, 2.0, 0.5))
+    return [
+        (np.asarray(sphere.vertices), np.asarray(sphere.faces, dtype=np.int64)),
+        (np.asarray(box.vertices) + 3.0, np.asarray(box.faces, dtype=np.int64)),
+    ]
+
+
+@pytest.fixture(scope="module")
+def atlas(parts):
+    return compute_atlas(parts, resolution=128, padding=2)
+
+
+def test_parts_index_back_into_their_input(parts, atlas):
+    assert len(atlas.parts) == 2
+    for (positions, faces), part in zip(parts, atlas.parts):
+        assert part.vmapping.dtype == np.int64 and part.faces.dtype == np.int64
+        assert part.uvs.dtype == np.float64 and part.uvs.shape == (len(part.vmapping), 2)
+        assert part.vmapping.min() >= 0 and part.vmapping.max() < len(positions)
+        # Same triangles, same order: only seam vertices are duplicated.
+        np.testing.assert_array_equal(part.vmapping[part.faces], faces)
+
+
+def test_uvs_in_unit_square_and_size(atlas):
+    for part in atlas.parts:
+        assert part.uvs.min() >= 0.0 and part.uvs.max() <= 1.0
+    assert atlas.width > 0 and atlas.height > 0
+    assert atlas.chart_count >= 2 and not atlas.jittered
+
+
+def test_worker_reports_its_own_peak_memory(atlas):
+    # A Python child with numpy and xatlas loaded holds tens of MB, far below the parent's pages.
+    parent_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    assert 10.0 < atlas.worker_peak_rss_mb < max(parent_mb, 200.0)
+
+
+def test_matches_xatlas_in_process(parts, atlas):
+    # xatlas sees the mesh centred and scaled to a diagonal of DIAGONAL
+    everything = np.concatenate([p for p, _ in parts])
+    lo, hi = everything.min(axis=0), everything.max(axis=0)
+    reference = xatlas.Atlas()
+    for positions, faces in parts:
+        normalised = (positions - (lo + hi) / 2) * (DIAGONAL / np.linalg.norm(hi - lo))
+        reference.add_mesh(normalised.astype(np.float32), faces.astype(np.uint32))
+    pack = xatlas.PackOptions()
+    pack.resolution, pack.padding = 128, 2
+    reference.generate(xatlas.ChartOptions(), pack)
+    assert (reference.width, reference.height) == (atlas.width, atlas.height)
+    for i, part in enumerate(atlas.parts):
+        vmapping, _, uvs = reference[i]
+        np.testing.assert_array_equal(part.vmapping, vmapping)
+        np.testing.assert_array_equal(part.uvs, uvs.astype(np.float64))
+
+
+@pytest.mark.parametrize("size", [1e-9, 1e12, 1e30])
+def test_the_atlas_is_the_same_at_any_size(parts, atlas, size):
+    # before charting a normalised copy, a 1e-9 mesh got a 0 x 0 atlas and a 1e12 one never finished
+    scaled = compute_atlas([(p * size, f) for p, f in parts], resolution=128, padding=2, timeout_s=60)
+    assert (scaled.width, scaled.height, scaled.chart_count) == (atlas.width, atlas.height, atlas.chart_count)
+    for part, reference in zip(scaled.parts, atlas.parts):
+        np.testing.assert_array_equal(part.vmapping, reference.vmapping)
+        np.testing.assert_allclose(part.uvs, reference.uvs, atol=1e-6)
+
+
+def test_a_mesh_without_extent_is_refused(parts):
+    positions, faces = parts[0]
+    with pytest.raises(AtlasError, match=r"^atlas: the mesh's bounding-box diagonal is 0; it must be finite and > 0"):
+        compute_atlas([(np.zeros_like(positions), faces)], resolution=64, padding=2)
+
+
+def test_crash_is_retried_with_jitter(parts, monkeypatch):
+    monkeypatch.setenv(CRASH_ENV, "1")
+    retried = compute_atlas(parts[:1], resolution=64, padding=2)
+    assert retried.jittered
+    positions, faces = parts[0]
+    np.testing.assert_array_equal(retried.parts[0].vmapping[retried.parts[0].faces], faces)
+
+
+def test_two_crashes_raise_a_clear_error(parts, monkeypatch):
+    monkeypatch.setenv(CRASH_ENV, "2")
+    with pytest.raises(AtlasError, match=r"atlas: xatlas crashed twice on this mesh \(signal 11, SIGSEGV"):
+        compute_atlas(parts[:1], resolution=64, padding=2)
+
+
+def test_timeout_raises():
+    sphere = trimesh.creation.icosphere(3)
+    with pytest.raises(AtlasError, match="ran longer than"):
+        compute_atlas([(sphere.vertices, sphere.faces)], timeout_s=0.01)
+
+
+def test_bad_input_raises(parts):
+    positions, faces = parts[0]
+    with pytest.raises(ValueError, match="no parts"):
+        compute_atlas([])
+    with pytest.raises(AtlasError, match="part 0 face indices"):
+        compute_atlas([(positions, faces + len(positions))])
+    with pytest.raises(AtlasError, match="part 0 faces"):
+        compute_atlas([(positions, faces[:0])])
+
+
+def test_worker_error_is_reported(parts, monkeypatch):
+    # A malformed hook value makes the worker exit with a Python error instead of a signal.
+    monkeypatch.setenv(CRASH_ENV, "not-a-number")
+    with pytest.raises(AtlasError, match=r"atlas: xatlas failed \(ValueError"):
+        compute_atlas(parts[:1], resolution=64, padding=2)

@@ -1,0 +1,55 @@
+"""Throughput factors F: the point rule far off, cell integrals close by, the threshold, and the
+size guard."""
+
+import numpy as np
+import pytest
+from kernels_planes import flat_surface
+
+from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile, total_diffuse_reflectance
+from sssbake.pipeline.core.materials import preset
+from sssbake.pipeline.techniques.kernels.throughput import throughput_matrix
+
+P = DipoleParams.from_material(preset("skin1"))
+
+
+@pytest.fixture(scope="module")
+def plane_f():
+    s = flat_surface(1.0, 14)
+    return s, throughput_matrix(s.positions, s.faces, s.normals, P, 1e-5)
+
+
+def test_far_entries_are_cell_times_rd_and_rows_are_sorted(plane_f):
+    s, f = plane_f
+    n = len(s.positions)
+    rows = np.repeat(np.arange(n), np.diff(f.indptr))
+    d = np.linalg.norm(s.positions[rows] - s.positions[f.indices], axis=1)
+    far = d > 8.0
+    expected = diffuse_reflectance_profile(d[far], P) * s.vertex_areas[f.indices[far], None]
+    np.testing.assert_allclose(f.values[far], expected, rtol=1e-4)
+    assert np.all(f.values.max(axis=1) >= 1e-5 * (1 - 1e-6))  # nothing below the threshold kept
+    assert not np.any(rows == f.indices)  # the blended technique's F has no diagonal
+    for j in range(0, n, 97):
+        assert np.all(np.diff(f.indices[f.indptr[j]: f.indptr[j + 1]]) > 0)
+
+
+def test_rows_of_a_plane_sum_to_rd(plane_f):
+    # Cell integrals tile the plane: receiver sums reach R_d (bar the threshold and the diagonal).
+    s, _ = plane_f
+    full = throughput_matrix(s.positions, s.faces, s.normals, P, 1e-7, diagonal=True)
+    centre = int(np.argmin(np.linalg.norm(s.positions, axis=1)))
+    row = slice(full.indptr[centre], full.indptr[centre + 1])
+    rd = total_diffuse_reflectance(P.alpha_prime, P.eta)
+    # the 28 mm plane holds all but the far tail of skin1's red
+    np.testing.assert_allclose(full.values[row].sum(axis=0), rd, rtol=0.02)
+    # the paper's point rule alone overestimates by the peak at the receiver (blue: z_r = 0.67 mm)
+    d = np.linalg.norm(s.positions[full.indices[row]] - s.positions[centre], axis=1)
+    point = (diffuse_reflectance_profile(d, P) * s.vertex_areas[full.indices[row], None]).sum(axis=0)
+    assert point[2] > 1.1 * rd[2]
+
+
+def test_a_higher_threshold_keeps_fewer_entries_and_the_guard_refuses_a_huge_f(plane_f):
+    s, f = plane_f
+    coarse = throughput_matrix(s.positions, s.faces, s.normals, P, 1e-3)
+    assert 0 < coarse.nnz < f.nnz and coarse.radius_mm < f.radius_mm
+    with pytest.raises(ValueError, match="raise the threshold"):
+        throughput_matrix(s.positions, s.faces, s.normals, P, 1e-5, max_entries=1000)

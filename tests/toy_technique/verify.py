@@ -1,0 +1,36 @@
+"""toy: the reader and verify's render items (Lambert times the albedo, drawn as q)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pygltflib
+
+from sssbake.exporters import gltf, usd
+from sssbake.pipeline.render.items import PLAIN_ALBEDO
+from sssbake.pipeline.techniques.technique import VerifyUnit
+
+
+class ToyVerify:
+    draw = None
+
+    def read(self, path) -> dict:
+        document = pygltflib.GLTF2.load(str(path))
+        blob = document.binary_blob()
+        return {(i, j): np.asarray(tables["albedo"]) for i, mesh in enumerate(document.meshes)
+                if (tables := gltf.technique_tables(document, mesh, "toy", blob)) is not None
+                for j in range(len(mesh.primitives))}
+
+    def read_usd(self, path) -> dict:
+        from pxr import Usd
+
+        stage = Usd.Stage.Open(str(path))
+        return {str(prim.GetPath()): np.asarray(tables["albedo"]) for prim in stage.Traverse()
+                if (tables := usd.technique_tables(prim, "toy")) is not None}
+
+    def bytes_per_vertex(self, block: dict) -> float:
+        return block["bytes"]["perVertex"]
+
+    def verify_items(self, unit: VerifyUnit, data: dict, runtime: dict) -> tuple[dict, dict]:
+        albedo = data[(unit.mesh, unit.primitives[0])]
+        return ({**unit.base, "q": unit.lambert_q(unit.primitive.normals) * albedo},
+                {**unit.base, "albedo": PLAIN_ALBEDO})
