@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 
+from sssbake.pipeline.core.errors import VerifyError
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.reference import Light, reference_scattering
 from sssbake.pipeline.core.visibility import direction_visibility, point_visibility
@@ -93,18 +94,18 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         ``pngs["stock"]``.
     """
     if reference_sum not in REFERENCES:
-        raise ValueError(f"verify: reference must be one of {list(REFERENCES)}, got {reference_sum!r}")
+        raise VerifyError(f"verify: reference must be one of {list(REFERENCES)}, got {reference_sum!r}")
     if technique not in NAMES:
-        raise ValueError(f"verify: technique must be one of {list(NAMES)}, got {technique!r}")
+        raise VerifyError(f"verify: technique must be one of {list(NAMES)}, got {technique!r}")
     hooks = BY_NAME[technique]
     path = Path(path)
     light_world = np.asarray(light_dir, dtype=np.float64)
     if light_world.shape != (3,) or not np.all(np.isfinite(light_world)) or not np.linalg.norm(light_world) > 0:
-        raise ValueError(f"verify: light direction must be three finite numbers, not all zero, got {light_dir}")
+        raise VerifyError(f"verify: light direction must be three finite numbers, not all zero, got {light_dir}")
     light_world = light_world / np.linalg.norm(light_world)
     point = None if light_pos is None else np.asarray(light_pos, dtype=np.float64)
     if point is not None and (point.shape != (3,) or not np.all(np.isfinite(point))):
-        raise ValueError(f"verify: light position must be three finite numbers, got {light_pos}")
+        raise VerifyError(f"verify: light position must be three finite numbers, got {light_pos}")
     data = hooks.read(path)
     gltf = pygltflib.GLTF2.load(str(path))
     scene = load_scene(str(path))
@@ -114,17 +115,17 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         units = [[pi] for pi in held] if hooks.draw_unit == "primitive" else ([held] if held else [])
         instances += [(mi, unit, world) for unit in units for world in worlds]
     if not instances:
-        raise ValueError(f"verify: {path} has no drawable primitive with {technique} data")
+        raise VerifyError(f"verify: {path} has no drawable primitive with {technique} data")
     mm_world = {float((gltf.meshes[mi].extras or {}).get("sssbake", {})["scaleMm"]) for mi, _, _ in instances}
     if point is not None:
         scales = [abs(np.linalg.det(world[:3, :3])) for _, _, world in instances]
         if len(mm_world) > 1 or not np.allclose(scales, 1.0, rtol=1e-6):
-            raise ValueError(f"verify: {path}: a point light needs one scaleMm and unscaled world transforms")
+            raise VerifyError(f"verify: {path}: a point light needs one scaleMm and unscaled world transforms")
         points = np.concatenate([(w[:3, :3] @ scene.meshes[mi].primitives[pi].positions.T).T + w[:3, 3]
                                  for mi, unit, w in instances for pi in unit])
         centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
         if not np.linalg.norm(point - centre) > 0:
-            raise ValueError(f"verify: the point light sits at the objects' centre {centre.tolist()}; move it")
+            raise VerifyError(f"verify: the point light sits at the objects' centre {centre.tolist()}; move it")
         light_world = (point - centre) / np.linalg.norm(point - centre)
         intensity = float(np.linalg.norm(point - centre) * next(iter(mm_world))) ** 2
 
@@ -174,7 +175,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         lambert_items.append({**base, "q": at.lambert_q(prim.normals)})
     reference_seconds = time.perf_counter() - t_ref
     if not self_references and not any(np.any(it["q"] > 0) for it in ref_items):
-        raise ValueError(f"verify: {path}: the light reaches no vertex (inside the object, or behind it)")
+        raise VerifyError(f"verify: {path}: the light reaches no vertex (inside the object, or behind it)")
 
     renderer = Renderer((size, size))
     world_points = np.concatenate([(it["model"][:3, :3] @ it["positions"].T).T + it["model"][:3, 3] for it in sss_items])
@@ -186,7 +187,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     image, mask = renderer.render(sss_items, camera, light)
     reference, ref_mask = renderer.render(ref_items, camera, light)
     if self_references and not np.any(reference[ref_mask] > 0):
-        raise ValueError(f"verify: {path}: the light reaches no cell (inside the object, or behind it)")
+        raise VerifyError(f"verify: {path}: the light reaches no cell (inside the object, or behind it)")
     exposure = shared_exposure(reference, ref_mask)
 
     def fitted(drawn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -307,7 +308,7 @@ def _material(gltf: pygltflib.GLTF2, index: int | None, path: Path) -> Material:
     if index is not None:
         data = ((gltf.materials[index].extras or {}).get("sssbake") or {}).get("material")
     if not data:
-        raise ValueError(f"verify: {path}: a scattering primitive's material has no extras.sssbake.material")
+        raise VerifyError(f"verify: {path}: a scattering primitive's material has no extras.sssbake.material")
     return Material(data["name"], tuple(data["sigma_s_prime"]), tuple(data["sigma_a"]), float(data["eta"]))
 
 

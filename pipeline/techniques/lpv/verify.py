@@ -13,6 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from sssbake.pipeline.core.errors import VerifyError
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.techniques.lpv.calibrate import render_scales
 from sssbake.pipeline.techniques.lpv.data import LpvGrid
@@ -64,7 +65,7 @@ class LpvVerify:
         source = memo["sources"].get((unit.mesh, unit.primitives[0]))
         field = str((unit.extras.get("lpv") or {}).get("field", "homogeneous"))
         if source is None and field != "homogeneous":
-            raise ValueError(f"verify: {path}: mesh {unit.mesh}'s lpv grid comes from a {field!r} field but the file "
+            raise VerifyError(f"verify: {path}: mesh {unit.mesh}'s lpv grid comes from a {field!r} field but the file "
                              "does not record its parameters (schema before 1.8.0): bake it again")
         if source is None or str(source.field) == "homogeneous":
             return None
@@ -119,7 +120,7 @@ def lpv_reference(surface: Surface, source: LpvSource, grid: LpvGrid, steps: int
     resolution = int(source.grid.resolution)
     finer = min(2 * resolution, LPV_REFERENCE_MAX_RESOLUTION)
     if finer <= resolution:
-        raise ValueError(f"verify: an lpv grid of {resolution} cells has no finer self-convergence reference within "
+        raise VerifyError(f"verify: an lpv grid of {resolution} cells has no finer self-convergence reference within "
                          f"{LPV_REFERENCE_MAX_RESOLUTION} cells")
     options = replace(source.grid, resolution=finer)
     voxels = voxelise(surface, source.mm_per_unit, source.material_field(), grid.eta, options)
