@@ -7,11 +7,15 @@ Layout of the file (documented for readers in ``exporters/schema/sssbake.schema.
   each sssbake vertex attribute as an application-specific attribute ``_KEY`` stored in its
   own buffer view with a 4-byte-aligned ``byteStride``;
 - translucent materials get ``KHR_materials_volume``, ``KHR_materials_diffuse_transmission`` and
-  ``KHR_materials_ior`` (all optional: listed in ``extensionsUsed`` only), ``extras.sssbake``
-  (with `BakedAsset.material_extras`' technique data, such as screen, arrays as table accessors),
-  and are single-sided (see `TRANSLUCENT_EXTENSIONS`);
-- the root ``extras.sssbake`` holds the asset-level data; numpy arrays found in
-  ``BakedAsset.extras`` become accessors ("tables") referenced as ``{"accessor": index}``;
+  ``KHR_materials_ior`` (all optional: listed in ``extensionsUsed`` only), are single-sided (see
+  `TRANSLUCENT_EXTENSIONS`) and carry the vendor extension `EXTENSION` with their scattering
+  material and `BakedAsset.material_extras`' technique data (such as screen);
+- the root's `EXTENSION` object holds the asset-level data, each scattering mesh's its scale,
+  technique data, ``vertexCounts`` and ``attributeTypes``; `EXTENSION` is in ``extensionsUsed``,
+  never in ``extensionsRequired`` (a viewer that ignores it still shows the fallback);
+- numpy arrays in that data become accessors ("tables") named ``sssbake/<owner>/<key path>``
+  and referenced by a table reference ``{"accessor", "name", "count", "type", "componentType",
+  "crc32"}`` (`exporters/schema/SSSBAKE_subsurface.md`; `gltf_tables` resolves and checks them);
 - a texture slot's ``KHR_texture_transform`` (read from the source) is written back as it was,
   listed in ``extensionsUsed``; images are copied byte for byte.
 """
@@ -23,6 +27,7 @@ import json
 import math
 import os
 import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -62,17 +67,21 @@ COMPONENT_NAMES = {
     FLOAT: "FLOAT", BYTE: "BYTE", UNSIGNED_BYTE: "UNSIGNED_BYTE", SHORT: "SHORT",
     UNSIGNED_SHORT: "UNSIGNED_SHORT", UNSIGNED_INT: "UNSIGNED_INT",
 }
+#: The vendor extension that holds sssbake's data (root, meshes, materials).
+EXTENSION = "SSSBAKE_subsurface"
+
 TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _VEC_TYPES = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
 _MAT_TYPES = {2: "MAT2", 3: "MAT3", 4: "MAT4"}
 
-#: Extensions a translucent material carries. KHR_materials_volume needs a transmission
-#: extension to mean anything; KHR_materials_diffuse_transmission is that one (glTF-Validator
-#: 2.0.0-dev.3.10 does not know it: an UNSUPPORTED_EXTENSION info, and it then skips its
-#: KHR_MATERIALS_VOLUME_NO_TRANSMISSION warning). A volume on a double-sided material is a
-#: validator warning (KHR_MATERIALS_VOLUME_DOUBLE_SIDED) and no volume at all, so translucent
-#: materials are written single-sided.
+#: Extensions a translucent material carries (values: `pipeline.bake.fallback`).
+#: KHR_materials_volume needs a transmission extension to mean anything: KHR_materials_transmission
+#: (three.js and Blender read it), and KHR_materials_diffuse_transmission for viewers that have it
+#: (glTF-Validator 2.0.0-dev.3.10 does not know it: an UNSUPPORTED_EXTENSION info). A volume on a
+#: double-sided material is a validator warning (KHR_MATERIALS_VOLUME_DOUBLE_SIDED) and no volume
+#: at all, so translucent materials are written single-sided.
 TRANSLUCENT_EXTENSIONS = (
+    "KHR_materials_transmission",
     "KHR_materials_volume",
     "KHR_materials_diffuse_transmission",
     "KHR_materials_ior",
@@ -140,6 +149,54 @@ def quantization_step(encoding: str) -> float:
     return 0.5 / np.iinfo(dtype).max if normalized else 0.0
 
 
+def accessor_elements(gltf: g.GLTF2, index: int, blob: bytes | None = None) -> np.ndarray:
+    """The elements of accessor `index` as glTF stores them, densely: sparse substitutions applied,
+    zeros where it has no buffer view, no stride padding.
+
+    Parameters
+    ----------
+    gltf : GLTF2
+        A file loaded with pygltflib (GLB: its binary chunk is used unless `blob` is given).
+    index : int
+
+    Returns
+    -------
+    (count, k) array of the accessor's component dtype, k its components per element (MATk:
+    k² values in glTF's column-major order).
+    """
+    acc = gltf.accessors[index]
+    data = gltf.binary_blob() if blob is None else blob
+    dtype = np.dtype(COMPONENT_DTYPES[acc.componentType])
+    k = TYPE_SIZES[acc.type]
+    if acc.bufferView is None:
+        values = np.zeros((acc.count, k), dtype=dtype)
+    else:
+        view = gltf.bufferViews[acc.bufferView]
+        values = _strided(data, (view.byteOffset or 0) + (acc.byteOffset or 0), acc.count,
+                          view.byteStride or dtype.itemsize * k, dtype, k)
+    sparse = acc.sparse
+    if sparse is not None and sparse.count:
+        # Tools such as glTF-Transform's `sparse` rewrite mostly-zero accessors this way.
+        ind, val = sparse.indices, sparse.values
+        ind_view, val_view = gltf.bufferViews[ind.bufferView], gltf.bufferViews[val.bufferView]
+        ind_dtype = np.dtype(COMPONENT_DTYPES[ind.componentType])
+        rows = _strided(data, (ind_view.byteOffset or 0) + (ind.byteOffset or 0), sparse.count, ind_dtype.itemsize,
+                        ind_dtype, 1)[:, 0].astype(np.int64)
+        if rows.size and (rows.min() < 0 or rows.max() >= acc.count):
+            raise ValueError(f"accessors[{index}]: sparse indices outside [0, {acc.count})")
+        values[rows] = _strided(data, (val_view.byteOffset or 0) + (val.byteOffset or 0), sparse.count,
+                                dtype.itemsize * k, dtype, k)
+    return values
+
+
+def _strided(data: bytes, start: int, count: int, stride: int, dtype: np.dtype, k: int) -> np.ndarray:
+    """(count, k) elements of `k` little-endian `dtype` values at `start`, `stride` bytes apart."""
+    elem = dtype.itemsize * k
+    raw = np.frombuffer(data, dtype=np.uint8, count=max(stride * (count - 1) + elem, 0), offset=start)
+    rows = np.lib.stride_tricks.as_strided(raw, shape=(count, elem), strides=(stride, 1))
+    return np.ascontiguousarray(rows).view(dtype.newbyteorder("<")).astype(dtype)
+
+
 def read_accessor(gltf: g.GLTF2, index: int, blob: bytes | None = None) -> np.ndarray:
     """The stored values of accessor `index`, as written (no dequantisation).
 
@@ -155,54 +212,27 @@ def read_accessor(gltf: g.GLTF2, index: int, blob: bytes | None = None) -> np.nd
     transposed from glTF's column-major storage); the accessor's component dtype.
     """
     acc = gltf.accessors[index]
-    view = gltf.bufferViews[acc.bufferView]
-    data = gltf.binary_blob() if blob is None else blob
-    dtype = np.dtype(COMPONENT_DTYPES[acc.componentType]).newbyteorder("<")
-    k = TYPE_SIZES[acc.type]
-    elem = dtype.itemsize * k
-    stride = view.byteStride or elem
-    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
-    raw = np.frombuffer(data, dtype=np.uint8, count=max(stride * (acc.count - 1) + elem, 0), offset=start)
-    rows = np.lib.stride_tricks.as_strided(raw, shape=(acc.count, elem), strides=(stride, 1))
-    values = np.ascontiguousarray(rows).view(dtype).astype(dtype.newbyteorder("="))
-    if acc.type == "SCALAR":
-        return values.reshape(acc.count)
-    if acc.type.startswith("MAT"):
-        n = int(acc.type[3])
-        return values.reshape(acc.count, n, n).transpose(0, 2, 1).copy()
-    return values
+    return element_array(accessor_elements(gltf, index, blob), acc.type)
 
 
-def technique_tables(gltf: g.GLTF2, mesh: g.Mesh | g.Material, technique: str,
-                     blob: bytes | None = None) -> dict | None:
-    """A mesh's (or material's) ``extras.sssbake[technique]`` with every ``{"accessor": i}`` read
-    into its array; None when it has no such data."""
-    tables = ((mesh.extras or {}).get("sssbake") or {}).get(technique)
-    if tables is None:
-        return None
-    return {k: read_accessor(gltf, v["accessor"], blob) if isinstance(v, dict) and "accessor" in v else v
-            for k, v in tables.items()}
+def element_array(elements: np.ndarray, acc_type: str) -> np.ndarray:
+    """`accessor_elements`' (count, k) rows in numpy's shape for `acc_type`: (count,) for SCALAR,
+    (count, k) for VECk, (count, k, k) row-major for MATk."""
+    count = len(elements)
+    if acc_type == "SCALAR":
+        return elements.reshape(count)
+    if acc_type.startswith("MAT"):
+        n = int(acc_type[3])
+        return elements.reshape(count, n, n).transpose(0, 2, 1).copy()
+    return elements
 
 
-def technique_primitives(gltf: g.GLTF2, technique: str, names, error: type, path, blob: bytes | None = None):
-    """Each mesh whose ``extras.sssbake`` has `technique`, as (mesh index, its `technique_tables`,
-    per primitive {attribute name: float64 values}) for the attributes ``names(tables)`` lists;
-    `error` (an exception class) names a primitive that lacks one."""
-    for i, mesh in enumerate(gltf.meshes):
-        tables = technique_tables(gltf, mesh, technique, blob)
-        if tables is None:
-            continue
-        wanted = names(tables)
-        per_primitive = []
-        for j, prim in enumerate(mesh.primitives):
-            values = {}
-            for name in wanted:
-                index = getattr(prim.attributes, name, None)
-                if index is None:
-                    raise error(f"{path}: mesh {i} primitive {j} lacks attribute {name}")
-                values[name] = dequantize(read_accessor(gltf, index, blob), bool(gltf.accessors[index].normalized))
-            per_primitive.append(values)
-        yield i, tables, per_primitive
+def table_crc32(elements: np.ndarray) -> str:
+    """A table reference's ``crc32``: zlib CRC-32 of `elements` ((count, k) in glTF's element
+    order, as `accessor_elements` gives them) packed densely little-endian, as 8 lowercase hex
+    digits."""
+    packed = np.ascontiguousarray(elements, dtype=elements.dtype.newbyteorder("<"))
+    return f"{zlib.crc32(packed.tobytes()):08x}"
 
 
 def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
@@ -246,8 +276,10 @@ def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
     for m, src in enumerate(scene.materials):
         material, extensions = _material(src, asset.scattering.get(m))
         if m in asset.material_extras:
-            _technique_extras(material.extras["sssbake"], asset.material_extras[m], packer,
-                              f"material {src.name!r} extras")
+            if EXTENSION not in (material.extensions or {}):
+                raise ValueError(f"material {src.name!r} has technique data but no scattering material")
+            _technique_extras(material.extensions[EXTENSION], asset.material_extras[m], packer,
+                              f"material {src.name!r} extras", f"material{m}")
         gltf.materials.append(material)
         used.update(extensions)
 
@@ -269,13 +301,10 @@ def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
                 material=prim.material,
                 mode=g.TRIANGLES,
             ))
-        extras = {}
+        extensions = {}
         if i in asset.scale_mm or i in asset.mesh_extras:
-            extras["sssbake"] = {"schemaVersion": SCHEMA_VERSION}
-            if i in asset.scale_mm:
-                extras["sssbake"]["scaleMm"] = finite_number(asset.scale_mm[i], f"scale_mm of mesh {mesh.name!r}")
-            _technique_extras(extras["sssbake"], asset.mesh_extras.get(i, {}), packer, f"mesh {mesh.name!r} extras")
-        gltf.meshes.append(g.Mesh(name=mesh.name or None, primitives=prims, extras=extras))
+            extensions[EXTENSION] = _mesh_extension(asset, i, prims, packer)
+        gltf.meshes.append(g.Mesh(name=mesh.name or None, primitives=prims, extensions=extensions))
 
     for node in scene.nodes:
         matrix = np.asarray(node.matrix, dtype=np.float64)
@@ -290,8 +319,8 @@ def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
     gltf.scenes.append(g.Scene(nodes=list(scene.roots)))
     gltf.scene = 0
 
-    gltf.extras = {"sssbake": _asset_extras(asset, packer)}
-    gltf.extensionsUsed = sorted(used)
+    gltf.extensions = {EXTENSION: _asset_extras(asset, packer)}
+    gltf.extensionsUsed = sorted(used | {EXTENSION})
 
     blob = packer.blob()
     if blob:
@@ -358,8 +387,9 @@ class _Packer:
         return len(self.gltf.bufferViews) - 1
 
     def accessor(self, values: np.ndarray, component: int, normalized: bool, kind: str, block: str,
-                 target: int | None = None, minmax: bool = False) -> int:
-        """Append `values` ((n,), (n, k) or (n, k, k), already in the component dtype)."""
+                 target: int | None = None, minmax: bool = False, name: str | None = None) -> int:
+        """Append `values` ((n,), (n, k) or (n, k, k), already in the component dtype) as an
+        accessor named `name`."""
         n = len(values)
         if values.ndim == 3:
             acc_type = _MAT_TYPES[values.shape[1]]
@@ -381,7 +411,7 @@ class _Packer:
         view = self.view(raw.tobytes(), kind, block, target=target, stride=stride)
         accessor = g.Accessor(
             bufferView=view, byteOffset=None, componentType=component, normalized=normalized or None,
-            count=n, type=acc_type,
+            count=n, type=acc_type, name=name,
         )
         if minmax:
             accessor.min = flat.min(axis=0).astype(np.float64).tolist()
@@ -510,7 +540,16 @@ def _texture_info(ref: TextureRef | None) -> g.TextureInfo | None:
 
 
 def _material(src: SourceMaterial, scattering: ScatteringMaterial | None) -> tuple[g.Material, list[str]]:
+    """The glTF material (`_material_json`) and the extensions it uses; a scattering one also gets
+    its `EXTENSION` object (scattering material in 1/mm, source name)."""
     material, extensions = _material_json(src, scattering)
+    if scattering is not None:
+        material.extensions[EXTENSION] = {
+            "schemaVersion": SCHEMA_VERSION,
+            "material": {**scattering.material.to_json(), "units": "1/mm"},
+            "sourceName": scattering.source_name,
+        }
+        extensions = extensions + [EXTENSION]
     slots = (material.pbrMetallicRoughness.baseColorTexture, material.pbrMetallicRoughness.metallicRoughnessTexture,
              material.normalTexture, material.occlusionTexture, material.emissiveTexture)
     if any(slot is not None and TEXTURE_TRANSFORM in (slot.extensions or {}) for slot in slots):
@@ -563,6 +602,8 @@ def _material_json(src: SourceMaterial, scattering: ScatteringMaterial | None) -
         volume["attenuationDistance"] = finite_number(fb.attenuation_distance, f"{what} attenuation_distance")
     volume["attenuationColor"] = [float(c) for c in fb.attenuation_color]
     material.extensions = {
+        "KHR_materials_transmission": {
+            "transmissionFactor": finite_number(fb.transmission_factor, f"{what} transmission_factor")},
         "KHR_materials_volume": volume,
         "KHR_materials_diffuse_transmission": {
             "diffuseTransmissionFactor": finite_number(fb.diffuse_transmission_factor,
@@ -571,11 +612,6 @@ def _material_json(src: SourceMaterial, scattering: ScatteringMaterial | None) -
         },
         "KHR_materials_ior": {"ior": finite_number(fb.ior, f"{what} ior")},
     }
-    material.extras = {"sssbake": {
-        "schemaVersion": SCHEMA_VERSION,
-        "material": {**scattering.material.to_json(), "units": "1/mm"},
-        "sourceName": scattering.source_name,
-    }}
     return material, list(TRANSLUCENT_EXTENSIONS)
 
 
@@ -584,7 +620,7 @@ def _asset_extras(asset: BakedAsset, packer: _Packer) -> dict:
     clash = reserved & set(asset.extras)
     if clash:
         raise ValueError(f"BakedAsset.extras must not set {sorted(clash)}; the exporter writes them")
-    extras = {"schemaVersion": SCHEMA_VERSION, **_json_value(asset.extras, packer, "extras")}
+    extras = {"schemaVersion": SCHEMA_VERSION, **_json_value(asset.extras, packer, "extras", "sssbake/asset")}
 
     meshes = asset.scene.meshes
     names = [m.name for m in meshes]
@@ -606,22 +642,46 @@ def _asset_extras(asset: BakedAsset, packer: _Packer) -> dict:
     return extras
 
 
-def _technique_extras(sssbake: dict, data: dict, packer: _Packer, where: str) -> None:
-    """Add a mesh's or material's technique data to its ``extras.sssbake`` (arrays become tables)."""
+def _mesh_extension(asset: BakedAsset, i: int, prims: list[g.Primitive], packer: _Packer) -> dict:
+    """Mesh `i`'s `EXTENSION` object: scale, ``vertexCounts`` (POSITION count per primitive),
+    ``attributeTypes`` (accessor type of each ``_`` attribute) and its technique data."""
+    mesh = asset.scene.meshes[i]
+    ext: dict = {"schemaVersion": SCHEMA_VERSION}
+    if i in asset.scale_mm:
+        ext["scaleMm"] = finite_number(asset.scale_mm[i], f"scale_mm of mesh {mesh.name!r}")
+    ext["vertexCounts"] = [len(p.positions) for p in mesh.primitives]
+    types: dict[str, str] = {}
+    for j, prim in enumerate(prims):
+        for name, index in vars(prim.attributes).items():
+            if not name.startswith("_") or index is None:
+                continue
+            acc_type = packer.gltf.accessors[index].type
+            if types.setdefault(name, acc_type) != acc_type:
+                raise ValueError(f"mesh {mesh.name!r}: attribute {name} is {types[name]} on one primitive and "
+                                 f"{acc_type} on primitive {j}")
+    ext["attributeTypes"] = dict(sorted(types.items()))
+    _technique_extras(ext, asset.mesh_extras.get(i, {}), packer, f"mesh {mesh.name!r} extras", f"mesh{i}")
+    return ext
+
+
+def _technique_extras(sssbake: dict, data: dict, packer: _Packer, where: str, owner: str) -> None:
+    """Add a mesh's or material's technique data to its `EXTENSION` object (arrays become tables
+    named ``sssbake/<owner>/<key path>``)."""
     clash = sorted(set(data) & set(sssbake))
     if clash:
         raise ValueError(f"{where} use reserved keys {clash}")
-    sssbake.update(_json_value(data, packer, where))
+    sssbake.update(_json_value(data, packer, where, f"sssbake/{owner}"))
 
 
-def _json_value(value, packer: _Packer, where: str):
-    """`value` as JSON; numpy arrays become table accessors referenced as ``{"accessor": i}``."""
+def _json_value(value, packer: _Packer, where: str, name: str):
+    """`value` as JSON; numpy arrays become table accessors named `name` plus their key path and
+    are replaced by their table reference."""
     if isinstance(value, dict):
-        return {str(k): _json_value(v, packer, f"{where}.{k}") for k, v in value.items()}
+        return {str(k): _json_value(v, packer, f"{where}.{k}", f"{name}/{k}") for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json_value(v, packer, f"{where}[{i}]") for i, v in enumerate(value)]
+        return [_json_value(v, packer, f"{where}[{i}]", f"{name}/{i}") for i, v in enumerate(value)]
     if isinstance(value, np.ndarray) and value.ndim > 0:
-        return {"accessor": _table(value, packer, where)}
+        return _table(value, packer, where, name)
     if isinstance(value, (np.generic, np.ndarray)):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
@@ -634,9 +694,9 @@ _TABLE_COMPONENTS = {np.dtype(np.uint8): UNSIGNED_BYTE, np.dtype(np.int8): BYTE,
                      np.dtype(np.uint16): UNSIGNED_SHORT, np.dtype(np.int16): SHORT}
 
 
-def _table(array: np.ndarray, packer: _Packer, where: str) -> int:
-    """Write a table: float -> FLOAT, (u)int8/(u)int16 as they are, other non-negative integers ->
-    UNSIGNED_INT.
+def _table(array: np.ndarray, packer: _Packer, where: str, name: str) -> dict:
+    """Write a table as accessor `name` (float -> FLOAT, (u)int8/(u)int16 as they are, other
+    non-negative integers -> UNSIGNED_INT) and return its table reference.
 
     Shapes (n,), (n, k) with k <= 4, and (n, k, k) with k in 2..4 (MATk) are accepted.
     """
@@ -650,9 +710,16 @@ def _table(array: np.ndarray, packer: _Packer, where: str) -> int:
                          f"and n > 0, got {array.shape}")
     if array.dtype.kind == "f":
         check_finite(array, where)
-        return packer.accessor(array.astype(np.float32), FLOAT, False, "table", "tables")
-    if array.dtype in _TABLE_COMPONENTS:
-        return packer.accessor(array, _TABLE_COMPONENTS[array.dtype], False, "table", "tables")
-    if array.dtype.kind in "iu" and (array.min() >= 0 and array.max() <= np.iinfo(np.uint32).max):
-        return packer.accessor(array.astype(np.uint32), UNSIGNED_INT, False, "table", "tables")
-    raise ValueError(f"{where}: a table must hold floats or integers in [0, 2^32), got dtype {array.dtype}")
+        stored, component = array.astype(np.float32), FLOAT
+    elif array.dtype in _TABLE_COMPONENTS:
+        stored, component = array, _TABLE_COMPONENTS[array.dtype]
+    elif array.dtype.kind in "iu" and (array.min() >= 0 and array.max() <= np.iinfo(np.uint32).max):
+        stored, component = array.astype(np.uint32), UNSIGNED_INT
+    else:
+        raise ValueError(f"{where}: a table must hold floats or integers in [0, 2^32), got dtype {array.dtype}")
+    index = packer.accessor(stored, component, False, "table", "tables", name=name)
+    acc = packer.gltf.accessors[index]
+    # The elements in glTF's order (MATk column-major), as a reader gets them back.
+    elements = stored.transpose(0, 2, 1) if stored.ndim == 3 else stored
+    return {"accessor": index, "name": name, "count": acc.count, "type": acc.type, "componentType": component,
+            "crc32": table_crc32(elements.reshape(len(stored), -1))}

@@ -1,5 +1,6 @@
 """What sssbake data a .glb holds: schema version, ``_`` attributes and technique tables with their
-bytes, extensions."""
+bytes, extensions. Every table and ``_`` attribute is checked as the readers check them
+(`gltf_tables`): a file whose sssbake data another tool broke is refused, not summarised."""
 
 from __future__ import annotations
 
@@ -9,44 +10,52 @@ from pathlib import Path
 import numpy as np
 import pygltflib as g
 
-from sssbake.exporters.gltf import COMPONENT_DTYPES, COMPONENT_NAMES, TYPE_SIZES
+from sssbake.exporters.gltf import COMPONENT_DTYPES, COMPONENT_NAMES, EXTENSION, TYPE_SIZES
+from sssbake.exporters.gltf_tables import SssbakeGltf, load_sssbake_gltf
 
 
 def inspect_glb(path: str | os.PathLike) -> dict:
-    """Summarise the sssbake content of a .glb (or .gltf) file.
+    """Summarise the sssbake content of a .glb file.
 
     Returns
     -------
     dict
         ``path``, ``bytes`` (file size), ``generator``, ``schemaVersion`` (of the root
-        ``extras.sssbake``, None if absent), ``extensionsUsed``, ``extensionsRequired``,
-        ``asset`` (the root ``extras.sssbake`` object or None), ``meshes``: per mesh ``name``,
-        ``sssbake`` (mesh ``extras.sssbake`` or None), ``techniques`` {technique (``prt``,
-        ``kernels``, ...): {``bytes`` (all its tables), ``tables`` {key: {``accessor``,
-        ``count``, ``type``, ``componentType``, ``normalized``, ``bytes``}}}} and
-        ``primitives``: per primitive
-        ``vertices``, ``material``, ``attributes`` {``_NAME``: {``count``, ``type``,
-        ``componentType`` (name), ``normalized``, ``bytes``, ``bytesPerVertex``}} and
-        ``bytesPerVertex`` (all ``_`` attributes); ``materials``: per material with
-        ``extras.sssbake`` its ``index``, ``name``, ``extensions`` (names), ``sssbake`` and
-        ``techniques`` (as a mesh's: the screen tables);
+        ``SSSBAKE_subsurface`` object, None if absent), ``extensionsUsed``, ``extensionsRequired``,
+        ``asset`` (the root ``SSSBAKE_subsurface`` object or None), ``meshes``: per mesh ``name``,
+        ``sssbake`` (its ``SSSBAKE_subsurface`` object or None), ``vertexCountsMatch`` (POSITION
+        counts equal the baked ``vertexCounts``; None without them), ``techniques`` {technique
+        (``prt``, ``kernels``, ...): {``bytes`` (all its tables), ``tables`` {key path:
+        {``accessor``, ``name``, ``crc32``, ``count``, ``type``, ``componentType``, ``normalized``,
+        ``bytes``}}}} and ``primitives``: per primitive ``vertices``, ``material``, ``attributes``
+        {``_NAME``: {``accessor``, ``count``, ``type``, ``componentType`` (name), ``normalized``,
+        ``bytes``, ``bytesPerVertex``}} and ``bytesPerVertex`` (all ``_`` attributes);
+        ``materials``: per material with a ``SSSBAKE_subsurface`` object its ``index``, ``name``,
+        ``extensions`` (names), ``sssbake`` and ``techniques`` (as a mesh's: the screen tables);
         ``bytesPerVertex``: {``_NAME``: bytes / vertices of the primitives carrying it,
         ``total``: all ``_`` attribute bytes / all vertices}.
 
-        Bytes are ``count × byteStride`` (or × element size without a stride): what the file
+        Bytes are ``count × byteStride`` (or × element size without a stride; an interleaved
+        view's element size rounded up to 4 bytes): what the file
         spends on the attribute, alignment padding included.
+
+    Raises
+    ------
+    StaleDataError
+        Schema 1.x data, or a table or ``_`` attribute that no longer matches its reference.
     """
     path = Path(path)
-    gltf = g.GLTF2.load(str(path))
-    root = (gltf.extras or {}).get("sssbake")
+    data = load_sssbake_gltf(path)
+    gltf = data.gltf
 
     meshes = []
     attr_bytes: dict[str, int] = {}
     attr_vertices: dict[str, int] = {}
     total_vertices = 0
-    for mesh in gltf.meshes:
+    for i, mesh in enumerate(gltf.meshes):
+        sssbake = data.extension(mesh) if data.root is not None else None
         prims = []
-        for prim in mesh.primitives:
+        for j, prim in enumerate(mesh.primitives):
             attributes = {k: v for k, v in vars(prim.attributes).items() if v is not None}
             n = gltf.accessors[attributes["POSITION"]].count if "POSITION" in attributes else 0
             total_vertices += n
@@ -54,6 +63,8 @@ def inspect_glb(path: str | os.PathLike) -> dict:
             for name, index in sorted(attributes.items()):
                 if not name.startswith("_"):
                     continue
+                if data.root is not None:
+                    data.attribute(i, j, name)  # refuses stale attributes
                 info = _accessor_info(gltf, index)
                 info["bytesPerVertex"] = info["bytes"] / n if n else 0.0
                 custom[name] = info
@@ -65,56 +76,68 @@ def inspect_glb(path: str | os.PathLike) -> dict:
                 "attributes": custom,
                 "bytesPerVertex": sum(a["bytes"] for a in custom.values()) / n if n else 0.0,
             })
-        sssbake = (mesh.extras or {}).get("sssbake")
-        meshes.append({"name": mesh.name, "sssbake": sssbake, "techniques": _techniques(gltf, sssbake),
-                       "primitives": prims})
+        counts = (sssbake or {}).get("vertexCounts")
+        meshes.append({"name": mesh.name, "sssbake": sssbake,
+                       "vertexCountsMatch": None if counts is None else counts == [p["vertices"] for p in prims],
+                       "techniques": _techniques(data, sssbake, f"meshes[{i}]"), "primitives": prims})
 
-    materials = [
-        {
-            "index": i,
-            "name": m.name,
-            "extensions": sorted(m.extensions or {}),
-            "sssbake": m.extras["sssbake"],
-            "techniques": _techniques(gltf, m.extras["sssbake"]),
-        }
-        for i, m in enumerate(gltf.materials)
-        if "sssbake" in (m.extras or {})
-    ]
+    materials = []
+    for i, m in enumerate(gltf.materials):
+        sssbake = data.extension(m) if data.root is not None else None
+        if sssbake is not None:
+            materials.append({"index": i, "name": m.name, "extensions": sorted(m.extensions or {}),
+                              "sssbake": sssbake, "techniques": _techniques(data, sssbake, f"materials[{i}]")})
     per_vertex = {name: attr_bytes[name] / attr_vertices[name] for name in attr_bytes if attr_vertices[name]}
     per_vertex["total"] = sum(attr_bytes.values()) / total_vertices if total_vertices else 0.0
     return {
         "path": str(path),
         "bytes": path.stat().st_size,
         "generator": gltf.asset.generator,
-        "schemaVersion": root.get("schemaVersion") if root else None,
+        "schemaVersion": data.root.get("schemaVersion") if data.root else None,
         "extensionsUsed": list(gltf.extensionsUsed or []),
         "extensionsRequired": list(gltf.extensionsRequired or []),
-        "asset": root,
+        "asset": data.root,
         "meshes": meshes,
         "materials": materials,
         "bytesPerVertex": per_vertex,
     }
 
 
-def _techniques(gltf: g.GLTF2, sssbake: dict | None) -> dict:
-    """The tables ({"accessor": i} values) of each technique object in a mesh's ``extras.sssbake``."""
+def _techniques(data: SssbakeGltf, sssbake: dict | None, owner: str) -> dict:
+    """The tables of each technique object in an extension object, each resolved and checked."""
     out = {}
-    for name, value in (sssbake or {}).items():
+    for technique, value in (sssbake or {}).items():
         if not isinstance(value, dict):
             continue
-        tables = {key: _accessor_info(gltf, ref["accessor"]) for key, ref in value.items()
-                  if isinstance(ref, dict) and "accessor" in ref}
+        tables = {}
+        for key, ref in _references(value, ""):
+            where = f"{owner}.extensions.{EXTENSION}.{technique}.{key}"
+            index, _ = data.check_table(ref, where)
+            tables[key] = {**_accessor_info(data.gltf, index), "name": ref["name"], "crc32": ref["crc32"]}
         if tables:
-            out[name] = {"bytes": sum(t["bytes"] for t in tables.values()), "tables": tables}
+            out[technique] = {"bytes": sum(t["bytes"] for t in tables.values()), "tables": tables}
     return out
+
+
+def _references(value, prefix: str):
+    """(key path, table reference) of every table reference nested in `value`."""
+    if isinstance(value, dict) and "accessor" in value:
+        yield prefix, value
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            yield from _references(item, f"{prefix}.{key}" if prefix else str(key))
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            yield from _references(item, f"{prefix}[{i}]")
 
 
 def _accessor_info(gltf: g.GLTF2, index: int) -> dict:
     acc = gltf.accessors[index]
     element = np.dtype(COMPONENT_DTYPES[acc.componentType]).itemsize * TYPE_SIZES[acc.type]
     stride = element
-    if acc.bufferView is not None:
-        stride = gltf.bufferViews[acc.bufferView].byteStride or element
+    if acc.bufferView is not None and gltf.bufferViews[acc.bufferView].byteStride:
+        # its own 4-byte-aligned slot, not an interleaved view's whole stride (glTF-Transform interleaves)
+        stride = min(gltf.bufferViews[acc.bufferView].byteStride, -(-element // 4) * 4)
     return {
         "accessor": index,
         "count": acc.count,

@@ -1,5 +1,6 @@
 """What sssbake data a USD file holds: schema version, ``primvars:sss:*`` and technique tables with
-their bytes, material ``sss:`` attributes."""
+their bytes, material ``sss:`` attributes. Every table is read and checked (`usd.technique_tables`),
+so a file whose sssbake data another tool broke is refused, as verify and the readers refuse it."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Usd, UsdGeom, UsdShade
 
-from sssbake.exporters.usd import SSS
+from sssbake.exporters.usd import SSS, check_schema, technique_tables
 
 _PRIMVAR_PREFIX = "primvars:" + SSS
 
@@ -28,9 +29,11 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
         ``material`` (bound material path or None), ``extras`` (its ``sss:extras`` JSON, parsed,
         or None), ``techniques`` {technique (``prt``, ``kernels``, ...): {``bytes`` (all its
         tables), ``tables`` {key: {``attribute``, ``type``, ``shape``, ``count`` (array
-        elements), ``bytes`` (as loaded)}}}}, ``primvars`` {``primvars:sss:<key>``:
+        elements), ``bytes`` (as stored)}}}}, ``primvars`` {``primvars:sss:<key>``:
         {``type``, ``interpolation``, ``elementSize``, ``count`` (array elements), ``bytes``
-        (count × value bytes, as loaded), ``bytesPerVertex``, ``unit``, ``description``}} and
+        (count × value bytes, as loaded), ``bytesPerVertex``, ``unit``, ``description``,
+        ``encoding`` (glTF's), ``components`` (values per vertex), ``packedBits`` (bits per
+        component packed into one int, or None)}} and
         ``bytesPerVertex`` (all ``primvars:sss:*``); ``materials``: per Material prim with
         ``sss:`` attributes its ``path``, ``sss`` {attribute name without ``sss:``: value, but
         ``sss:extras`` and the technique tables}, ``extras`` (its ``sss:extras`` JSON, parsed, or
@@ -42,9 +45,12 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
     ------
     pxr.Tf.ErrorException
         The file cannot be opened as a USD stage.
+    StaleDataError
+        Written by another major schema, or a table no longer matches its reference.
     """
     path = Path(path)
     stage = Usd.Stage.Open(str(path))
+    check_schema(stage)
     time = Usd.TimeCode.EarliestTime()
     default = stage.GetDefaultPrim()
     root = default if default else stage.GetPseudoRoot()
@@ -90,6 +96,9 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
                 "bytesPerVertex": array.nbytes / n if n else 0.0,
                 "unit": data.get("unit", ""),
                 "description": data.get("description", ""),
+                "encoding": data.get("encoding"),
+                "components": data.get("components"),
+                "packedBits": data.get("packedBits"),
             }
             attr_bytes[name] = attr_bytes.get(name, 0) + int(array.nbytes)
             attr_vertices[name] = attr_vertices.get(name, 0) + n
@@ -127,12 +136,13 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
 
 
 def _techniques(prim: Usd.Prim, extras: dict | None) -> dict:
-    """The tables ({"attribute": name, "shape": [...]} values) of each technique object in a Mesh
-    prim's ``sss:extras``."""
+    """The tables ({"attribute": name, "shape": [...], "crc32": ...} values) of each technique object
+    in a Mesh or Material prim's ``sss:extras``, each checked by `technique_tables`."""
     out = {}
     for name, value in (extras or {}).items():
         if not isinstance(value, dict):
             continue
+        technique_tables(prim, name)  # refuses stale tables
         tables = {}
         for key, ref in value.items():
             if isinstance(ref, dict) and "attribute" in ref:

@@ -1,6 +1,6 @@
-"""OpenUSD (.usdc) export of a BakedAsset: geometry, UsdPreviewSurface materials and sssbake data.
+"""OpenUSD (.usdc) export of a BakedAsset: geometry, materials and sssbake data, with typed primvars.
 
-Layout of the file (one self-contained crate file):
+Layout of the file (one crate file, plus its thickness textures as PNG files next to it):
 
 - stage metadata ``upAxis`` (the scene's), ``metersPerUnit`` (see `meters_per_unit`),
   ``defaultPrim`` = ``/<Root>``, an Xform of kind ``component`` named after the file stem, and
@@ -13,31 +13,47 @@ Layout of the file (one self-contained crate file):
   interpolation), extent, subdivisionScheme ``none``, ``primvars:st``, ``primvars:st1``, ... from
   TEXCOORD_0, 1, ... (v flipped back to USD's bottom-up convention), displayColor/displayOpacity
   from the vertex colours, and ``sss:scaleMm`` (double, mm per file unit) when the asset has it;
-- each `VertexAttribute` as a float[] (int[] for ``uint8``, ``uint16``) primvar (`VertexAttribute.usd_name`) with vertex interpolation,
-  ``elementSize`` k for (n, k) data, the unit and description in its ``customData`` (``unit``,
-  ``description``) and the description as its documentation;
-- materials under ``/<Root>/Materials``: a Material with one UsdPreviewSurface shader, bound with
-  the MaterialBindingAPI. Translucent materials get the fallback's diffuseColor and ior and the
-  ``sss:`` attributes listed in `_scattering_attributes`;
-- on the root prim ``sss:schemaVersion`` and ``sss:extras`` (`BakedAsset.extras` as a JSON string);
-  numpy arrays in the extras become ``sss:tables:t<i>`` array attributes referenced in the JSON
-  as ``{"attribute": "sss:tables:t<i>", "shape": [...]}``;
-- on each Mesh prim of a mesh with `BakedAsset.mesh_extras` (technique data such as prt), its own
-  ``sss:extras`` JSON and ``sss:tables:t<i>`` attributes, the same way;
-- on each translucent Material prim with `BakedAsset.material_extras` (technique data such as
-  screen), its own ``sss:extras`` JSON, the tables as attributes named by their keys
-  (``sss:screen:offsets``, ``sss:screen:weights``, ``sss:screen:rdTable``);
+- each `VertexAttribute` as a vertex-interpolated primvar (`VertexAttribute.usd_name`) of the
+  type `primvar_layout` chooses: typed vectors (``float2[]``, ``float3[]``, ``normal3f[]`` for a
+  key ending in ``normal``) rather than ``elementSize``, which Blender's importer zeroes; 8-bit
+  integer codes as ``uchar[]``; two to four 8-bit codes, or two 16-bit ones, packed little-end
+  first into one ``int`` (USD has no 16-bit integers), the same bytes as glTF's accessor. Its
+  customData: ``unit``, ``description``, ``encoding`` (glTF's), ``components``, ``gltfName`` and,
+  when packed, ``packedBits``; `primvar_values` decodes it to what a glTF reader gets;
+- materials under ``/<Root>/Materials``: a Material with a UsdPreviewSurface (``PreviewSurface``),
+  bound with the MaterialBindingAPI. A translucent material's surface carries the fallback's
+  diffuseColor, roughness, ior and opacity 1; diffuse transmission and volume attenuation have no
+  UsdPreviewSurface input, so they stay ``sss:fallback:*`` attributes and the Material's
+  customData ``sssbake:previewSurface`` says so. Its thickness texture is a ``UsdUVTexture``
+  (``ThicknessTexture``: ``file`` = ``@./<stem>.thickness<k>.png@``, raw colour space, ``scale``
+  = thicknessFactor so ``outputs:g`` is the thickness in file units) reading ``st`` from a
+  ``UsdPrimvarReader_float2`` of the atlas UV set, wired to the Material output
+  ``outputs:sss:thickness``. The ``sss:`` attributes of `_scattering_attributes` include the
+  OpenPBR subsurface parameters (``sss:openpbr:*``); usd-core has no MaterialX (no ``UsdMtlx``,
+  no ``ND_open_pbr_surface_surfaceshader`` in its Sdr registry, so UsdValidation refuses such a
+  shader), so no OpenPBR shader is authored;
+- on the root prim ``sss:schemaVersion`` and ``sss:extras`` (`BakedAsset.extras` as a JSON
+  string); on each Mesh prim of a mesh with `BakedAsset.mesh_extras` its own ``sss:extras``; on
+  each translucent Material prim with `BakedAsset.material_extras` its own ``sss:extras``. Numpy
+  arrays in them become array attributes of the prim named by their keys (``sss:prt:directions``,
+  ``sss:screen:offsets``): float tables typed by shape (``float3[]``, ``matrix4d[]``), integer ones
+  ``int[]`` (compressed on disk), each with its shape and dtype in customData (`_table`);
+  the JSON holds ``{"attribute": name, "shape": [...], "crc32": "<8 hex>"}`` in their place, and
+  names primvars (``primvars:sss:prt:ref``) where the glTF JSON names vertex attributes
+  (``_SSS_PRT_REF``).
 
-Textures are not written: a .usdc cannot embed images, and files next to it would break the
-one-file output. Everything is float32 except matrices and ``sss:scaleMm`` (double).
+`technique_tables` and `technique_data` read it back, refusing stale tables (`StaleDataError`).
+Everything is float32 except matrices and ``sss:scaleMm`` (double).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 import re
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +62,7 @@ from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 from sssbake.exporters.atomic import atomic_path
 from sssbake.exporters.finite import check_finite, finite_number
 from sssbake.exporters.gltf import generator
+from sssbake.pipeline.core.errors import StaleDataError
 from sssbake.pipeline.mesh.baked import (
     SCHEMA_VERSION,
     BakedAsset,
@@ -53,13 +70,29 @@ from sssbake.pipeline.mesh.baked import (
     VertexAttribute,
     check_material_references,
 )
-from sssbake.pipeline.mesh.scene import Primitive, SourceMaterial
+from sssbake.pipeline.mesh.scene import Primitive, SourceMaterial, Texture, TextureRef
 
 #: Prefix of every sssbake attribute and primvar namespace.
 SSS = "sss:"
 MATERIALS_SCOPE = "Materials"
 SHADER_NAME = "PreviewSurface"
+THICKNESS_TEXTURE = "ThicknessTexture"
+THICKNESS_READER = "ThicknessUV"
+#: The Material output the thickness texture (file units) is wired to.
+THICKNESS_OUTPUT = SSS + "thickness"
 FACE_BLOCKS = ("faceVertexCounts", "faceVertexIndices")
+#: What a Material's customData says UsdPreviewSurface cannot carry.
+PREVIEW_SURFACE_NOTE = ("UsdPreviewSurface has no diffuse transmission and no volume attenuation "
+                        "(glTF KHR_materials_diffuse_transmission, KHR_materials_volume): they are the "
+                        "sss:fallback:* attributes; outputs:sss:thickness is the baked thickness (file units)")
+_T = Sdf.ValueTypeNames
+#: Float vector types by component count; Blender's importer keeps float[], float2[], float3[].
+_FLOAT_TYPES = {1: _T.FloatArray, 2: _T.Float2Array, 3: _T.Float3Array, 4: _T.Float4Array}
+#: glTF normalized encodings: (bits, signed, MAX).
+_NORMALIZED = {"snorm8": (8, True, 127), "unorm8": (8, False, 255), "snorm16": (16, True, 32767),
+               "unorm16": (16, False, 65535)}
+_INTEGER_BITS = {"uint8": 8, "uint16": 16}
+_WRAPS = {33071: "clamp", 33648: "mirror", 10497: "repeat"}
 
 
 def meters_per_unit(asset: BakedAsset) -> float:
@@ -77,7 +110,21 @@ def meters_per_unit(asset: BakedAsset) -> float:
     return 1.0
 
 
-def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dict]:
+def thickness_texture_files(asset: BakedAsset, stem: str) -> dict[int, str]:
+    """Texture index -> file name (``<stem>.thickness<k>.png``, k in order of first use) of every
+    thickness texture a translucent material uses: what `write_usdc` writes next to the .usdc."""
+    out: dict[int, str] = {}
+    for m in sorted(asset.scattering):
+        ref = asset.scattering[m].fallback.thickness_texture
+        if ref is not None and ref.texture not in out:
+            image = asset.scene.images[asset.scene.textures[ref.texture].image]
+            suffix = ".jpg" if image.mime_type == "image/jpeg" else ".png"
+            out[ref.texture] = f"{stem}.thickness{len(out)}{suffix}"
+    return out
+
+
+def to_stage(asset: BakedAsset, root_name: str = "Root",
+             texture_files: dict[int, str] | None = None) -> tuple[Usd.Stage, dict]:
     """Build `asset` as an in-memory stage.
 
     Parameters
@@ -85,11 +132,14 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
     asset : BakedAsset
     root_name : str
         Name of the default prim; made a valid USD identifier.
+    texture_files : dict of int to str, optional
+        Texture index -> file name next to the .usdc (`thickness_texture_files`); a thickness
+        texture not listed gets no UsdUVTexture (nothing is written to disk here).
 
     Returns
     -------
     stage : Usd.Stage
-        Anonymous in-memory stage; nothing is written to disk.
+        Anonymous in-memory stage.
     summary : dict
         ``vertices``, ``faces`` (written Mesh prims, instances counted each time), ``blocks``
         {block name: bytes} (``points``, ``normals``, ``primvars:st``, ``primvars:sss:<key>``,
@@ -101,9 +151,9 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
     Raises
     ------
     ValueError
-        Non-finite data (or beyond float32), a primvar whose element count is not points ×
-        elementSize, face indices out of range, attributes or scattering for meshes,
-        primitives or materials the scene lacks.
+        Non-finite data (or beyond float32), a primvar whose element count is not the points',
+        integer data out of its encoding's range, face indices out of range, attributes or
+        scattering for meshes, primitives or materials the scene lacks.
     """
     scene = asset.scene
     _check_references(asset)
@@ -117,9 +167,10 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
     stage.SetDefaultPrim(root)
     Usd.ModelAPI(root).SetKind(Kind.Tokens.component)
     _string_attribute(root, SSS + "schemaVersion", SCHEMA_VERSION)
-    _string_attribute(root, SSS + "extras", _extras_json(asset.extras, root, "extras"))
+    every = {a.gltf_name: a.usd_name for attrs in asset.vertex_attributes.values() for a in attrs}
+    _string_attribute(root, SSS + "extras", _extras_json(asset.extras, root, "extras", every))
 
-    materials = _materials(stage, root_path.AppendChild(MATERIALS_SCOPE), asset)
+    materials = _materials(stage, root_path.AppendChild(MATERIALS_SCOPE), asset, texture_files or {})
 
     acc = _Accounting()
     taken = {root_path: {MATERIALS_SCOPE}}
@@ -135,6 +186,8 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
             xform.AddTransformOp().Set(Gf.Matrix4d(matrix.T.tolist()))
         if node.mesh is not None:
             mesh = scene.meshes[node.mesh]
+            names = {a.gltf_name: a.usd_name for j in range(len(mesh.primitives))
+                     for a in asset.vertex_attributes.get((node.mesh, j), ())}
             for j, prim in enumerate(mesh.primitives):
                 name = mesh.name if len(mesh.primitives) == 1 else f"{mesh.name}_{j}"
                 mesh_name = _unique(_identifier(name, f"mesh{node.mesh}_{j}"), taken.setdefault(path, set()))
@@ -147,7 +200,7 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
                     attribute.Set(scale)
                 if node.mesh in asset.mesh_extras:
                     extras_json = _extras_json(asset.mesh_extras[node.mesh], usd_mesh.GetPrim(),
-                                               f"mesh {mesh.name!r} extras")
+                                               f"mesh {mesh.name!r} extras", names)
                     _string_attribute(usd_mesh.GetPrim(), SSS + "extras", extras_json)
                 if prim.material is not None:
                     src = scene.materials[prim.material]
@@ -159,21 +212,31 @@ def to_stage(asset: BakedAsset, root_name: str = "Root") -> tuple[Usd.Stage, dic
 
 
 def write_usdc(asset: BakedAsset, path: str | os.PathLike) -> dict:
-    """Write `asset` to `path` (.usdc) atomically: on any error nothing is left behind.
+    """Write `asset` to `path` (.usdc) and its thickness textures next to it, each atomically, the
+    .usdc last: on any error the .usdc is left as it was and no temporary file remains.
 
-    The default prim is named after the file stem (made a valid identifier).
+    The default prim is named after the file stem (made a valid identifier); the textures are
+    `thickness_texture_files`, referenced by relative asset paths.
 
     Returns
     -------
     dict
-        ``path``, ``bytes`` (file size) and `to_stage`'s summary.
+        ``path``, ``bytes`` (file size), ``textures`` (paths of the texture files written) and
+        `to_stage`'s summary.
     """
     path = Path(path)
-    stage, summary = to_stage(asset, path.stem)
-    with atomic_path(path) as tmp:
-        if not stage.GetRootLayer().Export(str(tmp)):
-            raise OSError(f"USD could not write {tmp}")
-    return {"path": str(path), "bytes": path.stat().st_size, **summary}
+    files = thickness_texture_files(asset, path.stem)
+    stage, summary = to_stage(asset, path.stem, files)
+    with contextlib.ExitStack() as stack:
+        # entered first, renamed last: a new .usdc never appears without its textures
+        usdc = stack.enter_context(atomic_path(path))
+        for texture, name in files.items():
+            tmp = stack.enter_context(atomic_path(path.with_name(name)))
+            tmp.write_bytes(asset.scene.images[asset.scene.textures[texture].image].data)
+        if not stage.GetRootLayer().Export(str(usdc)):
+            raise OSError(f"USD could not write {usdc}")
+    textures = [str(path.with_name(name)) for name in files.values()]
+    return {"path": str(path), "bytes": path.stat().st_size, "textures": textures, **summary}
 
 
 class _Accounting:
@@ -197,6 +260,114 @@ class _Accounting:
         per_vertex["total"] = sum(vertex.values()) / n if n else 0.0
         per_vertex["sssbake"] = sum(v for b, v in vertex.items() if b.startswith("primvars:" + SSS)) / n if n else 0.0
         return {"vertices": n, "faces": self.faces, "blocks": dict(self.blocks), "bytes_per_vertex": per_vertex}
+
+
+def primvar_layout(attr: VertexAttribute, data: np.ndarray, what: str
+                   ) -> tuple[Sdf.ValueTypeName, np.ndarray, int, dict]:
+    """How one vertex attribute is stored as a USD primvar.
+
+    Parameters
+    ----------
+    attr : VertexAttribute
+    data : (n,) or (n, k) float32
+        Its finite values.
+    what : str
+        For error messages.
+
+    Returns
+    -------
+    type_name : Sdf.ValueTypeName
+        ``uchar[]`` (one 8-bit code), ``int[]`` (one 16-bit integer, or 8-bit codes x 2..4 / 16-bit
+        x 2 packed: component i in bits [b·i, b·(i+1)) of the value read as uint32), ``normal3f[]``
+        (3 components, key ending in ``normal``), else ``float[]``, ``float2[]``, ``float3[]``,
+        ``float4[]`` (values; normalized codes that do not pack decoded), ``float[]`` with
+        ``elementSize`` k beyond 4 components, or ``int[]`` with ``elementSize`` k for integers
+        that do not pack.
+    values : (n,) or (n, k) array
+        What the primvar holds, one row per vertex.
+    element_size : int
+        The primvar's elementSize: k for the ``float[]`` / ``int[]`` cases above, else 1.
+    meta : dict
+        The primvar's customData but ``unit`` and ``description``: ``encoding``, ``components``,
+        ``gltfName``, ``packedBits`` when packed.
+    """
+    k = 1 if data.ndim == 1 else data.shape[1]
+    columns = data.reshape(len(data), k).astype(np.float64)
+    meta = {"encoding": attr.encoding, "components": k, "gltfName": attr.gltf_name}
+    bits = _INTEGER_BITS.get(attr.encoding) or _NORMALIZED.get(attr.encoding, (None,))[0]
+    if bits is None:
+        if k == 3 and attr.key.endswith("normal"):
+            return _T.Normal3fArray, data, 1, meta
+        return (_FLOAT_TYPES[k], data, 1, meta) if k in _FLOAT_TYPES else (_T.FloatArray, data, k, meta)
+    codes = _codes(columns, attr.encoding, what)
+    if k == 3 and attr.key.endswith("normal"):
+        return _T.Normal3fArray, _decode(codes, attr.encoding).astype(np.float32), 1, meta
+    if bits == 8 and k == 1:
+        return _T.UCharArray, codes[:, 0].astype(np.uint8), 1, meta
+    if bits * k <= 32 and k > 1:
+        packed = np.zeros(len(codes), dtype=np.uint32)
+        for i in range(k):
+            packed |= codes[:, i].astype(np.uint32) << np.uint32(bits * i)
+        return _T.IntArray, packed.view(np.int32), 1, {**meta, "packedBits": bits}
+    if attr.encoding in _INTEGER_BITS:
+        return _T.IntArray, codes.astype(np.int32) if k > 1 else codes[:, 0].astype(np.int32), k, meta
+    # normalized values that do not pack: decoded floats, what a glTF reader gets
+    decoded = _decode(codes, attr.encoding).astype(np.float32)
+    return (_FLOAT_TYPES[k], decoded, 1, meta) if k in _FLOAT_TYPES else (_T.FloatArray, decoded, k, meta)
+
+
+def _codes(columns: np.ndarray, encoding: str, what: str) -> np.ndarray:
+    """(n, k) unsigned integer codes of `columns` for `encoding` (signed codes two's complement)."""
+    if encoding in _INTEGER_BITS:
+        top = (1 << _INTEGER_BITS[encoding]) - 1
+        if columns.size and (columns.min() < 0 or columns.max() > top or np.any(columns != np.round(columns))):
+            raise ValueError(f"{what} needs integers in [0, {top}]")
+        return columns.astype(np.int64)
+    bits, signed, top = _NORMALIZED[encoding]
+    low = -1.0 if signed else 0.0
+    if columns.size and (columns.min() < low or columns.max() > 1.0):
+        raise ValueError(f"{what} needs values in [{low:g}, 1] for {encoding}")
+    return np.round(columns * top).astype(np.int64) % (1 << bits)
+
+
+def _decode(codes: np.ndarray, encoding: str) -> np.ndarray:
+    """float64 values of unsigned `codes` as glTF decodes `encoding` (``max(c / MAX, -1)`` signed)."""
+    if encoding in _INTEGER_BITS:
+        return codes.astype(np.float64)
+    bits, signed, top = _NORMALIZED[encoding]
+    c = codes.astype(np.int64)
+    if signed:
+        c = np.where(c >= 1 << (bits - 1), c - (1 << bits), c)
+    return np.maximum(c / top, -1.0)
+
+
+def primvar_values(primvar: UsdGeom.Primvar) -> np.ndarray:
+    """(n, k) float64 values of an sssbake primvar as a glTF reader decodes the attribute (normalized
+    codes as ``code / MAX``, integers as themselves), unpacking what `primvar_layout` packed.
+
+    Raises
+    ------
+    StaleDataError
+        The primvar's customData no longer describes its values.
+    """
+    data = primvar.GetAttr().GetCustomData()
+    raw = primvar.Get()
+    values = np.zeros(0) if raw is None else np.asarray(raw)
+    encoding, k = data.get("encoding"), int(data.get("components", 1))
+    coded = encoding in _INTEGER_BITS or encoding in _NORMALIZED
+    if "packedBits" in data and coded:
+        bits = int(data["packedBits"])
+        unsigned = values.reshape(-1).astype(np.int32).view(np.uint32).astype(np.int64)
+        codes = np.stack([(unsigned >> (bits * i)) & ((1 << bits) - 1) for i in range(k)], axis=1)
+        return _decode(codes, encoding)
+    width = values.shape[1] if values.ndim == 2 else primvar.GetElementSize()
+    if width != k or values.size % k:
+        raise _stale(primvar.GetAttr().GetPrim(), f"{primvar.GetAttr().GetPath()} has {width} components per "
+                                                  f"vertex, its customData says {k}")
+    values = values.reshape(-1, k)
+    if coded and values.dtype.kind in "iu":
+        return _decode(values.astype(np.int64), encoding)
+    return values.astype(np.float64)
 
 
 def _mesh(stage: Usd.Stage, path: Sdf.Path, prim: Primitive, attrs: tuple[VertexAttribute, ...], where: str,
@@ -227,7 +398,7 @@ def _mesh(stage: Usd.Stage, path: Sdf.Path, prim: Primitive, attrs: tuple[Vertex
         if uv.ndim != 2 or uv.shape[1] != 2:
             raise ValueError(f"{where}: TEXCOORD_{t} has shape {uv.shape}, expected (n, 2)")
         flipped = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]).astype(np.float32)
-        primvars.append(("st" if t == 0 else f"st{t}", Sdf.ValueTypeNames.TexCoord2fArray, flipped, None, {}))
+        primvars.append((uv_primvar(t), Sdf.ValueTypeNames.TexCoord2fArray, flipped, None, {}))
     if prim.colors is not None:
         colors = _float32(prim.colors, f"{where}: colors")
         if colors.ndim != 2 or colors.shape[1] not in (3, 4):
@@ -237,20 +408,17 @@ def _mesh(stage: Usd.Stage, path: Sdf.Path, prim: Primitive, attrs: tuple[Vertex
             primvars.append(("displayOpacity", Sdf.ValueTypeNames.FloatArray, colors[:, 3], None, {}))
     for attr in attrs:
         name = attr.usd_name.removeprefix("primvars:")
+        what = f"{where}: attribute {attr.usd_name}"
         if any(name == p[0] for p in primvars):
             raise ValueError(f"{where}: attribute {attr.usd_name} given twice")
-        data = _float32(attr.data, f"{where}: attribute {attr.usd_name}")
+        data = _float32(attr.data, what)
         if data.ndim not in (1, 2):
-            raise ValueError(f"{where}: attribute {attr.usd_name} has shape {data.shape}, expected (n,) or (n, k)")
-        size = data.shape[1] if data.ndim == 2 else None
-        meta = {"unit": attr.unit, "description": attr.description}
-        type_name = Sdf.ValueTypeNames.FloatArray
-        if attr.encoding in ("uint8", "uint16"):
-            top = np.iinfo(attr.encoding).max
-            if data.size and (data.min() < 0 or data.max() > top or np.any(data != np.round(data))):
-                raise ValueError(f"{where}: attribute {attr.usd_name} needs integers in [0, {top}]")
-            data, type_name = data.astype(np.int32), Sdf.ValueTypeNames.IntArray
-        primvars.append((name, type_name, data.reshape(-1), size, meta))
+            raise ValueError(f"{what} has shape {data.shape}, expected (n,) or (n, k)")
+        if len(data) != n:
+            raise ValueError(f"{what} has {len(data)} elements, expected {n} points")
+        type_name, values, element_size, meta = primvar_layout(attr, data, what)
+        primvars.append((name, type_name, values, element_size if element_size > 1 else None,
+                         {"unit": attr.unit, "description": attr.description, **meta}))
 
     vt_points = Vt.Vec3fArray.FromNumpy(positions)
     vt_normals = None if prim.normals is None else _vt_checked(
@@ -289,16 +457,23 @@ def _mesh(stage: Usd.Stage, path: Sdf.Path, prim: Primitive, attrs: tuple[Vertex
     return mesh
 
 
+def uv_primvar(uv_set: int) -> str:
+    """The primvar name of TEXCOORD set `uv_set`: ``st``, ``st1``, ..."""
+    return "st" if uv_set == 0 else f"st{uv_set}"
+
+
 def _vt_checked(type_name: Sdf.ValueTypeName, values: np.ndarray, n: int, element_size: int, what: str):
     """`values` as the Vt array of `type_name`, refused unless it holds n × element_size elements."""
-    vt = type_name.type.pythonClass.FromNumpy(np.ascontiguousarray(values))
+    vt = type_name.type.pythonClass.FromNumpy(np.ascontiguousarray(values).reshape(-1) if element_size > 1
+                                              else np.ascontiguousarray(values))
     if len(vt) != n * element_size:
         raise ValueError(f"{what} has {len(vt)} elements, expected {n} points × elementSize {element_size} "
                          f"= {n * element_size}")
     return vt
 
 
-def _materials(stage: Usd.Stage, scope_path: Sdf.Path, asset: BakedAsset) -> list[UsdShade.Material]:
+def _materials(stage: Usd.Stage, scope_path: Sdf.Path, asset: BakedAsset,
+               texture_files: dict[int, str]) -> list[UsdShade.Material]:
     scene = asset.scene
     if not scene.materials:
         return []
@@ -315,73 +490,117 @@ def _materials(stage: Usd.Stage, scope_path: Sdf.Path, asset: BakedAsset) -> lis
             shader.CreateInput(name, type_name).Set(value)
         material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
         if scattering is not None:
-            for name, type_name, value in _scattering_attributes(scattering, f"material {src.name!r}"):
+            what = f"material {src.name!r}"
+            material.GetPrim().SetCustomDataByKey("sssbake:previewSurface", PREVIEW_SURFACE_NOTE)
+            for name, type_name, value in _scattering_attributes(scattering, meters_per_unit(asset) * 1000.0, what):
                 material.GetPrim().CreateAttribute(name, type_name, custom=True).Set(value)
+            ref = scattering.fallback.thickness_texture
+            if ref is not None and ref.texture in texture_files:
+                _thickness_network(stage, material, asset.scene.textures[ref.texture], ref,
+                                   scattering.fallback.thickness_factor, texture_files[ref.texture], what)
             if m in asset.material_extras:
                 _string_attribute(material.GetPrim(), SSS + "extras",
-                                  _extras_json(asset.material_extras[m], material.GetPrim(),
-                                               f"material {src.name!r} extras", named=True))
+                                  _extras_json(asset.material_extras[m], material.GetPrim(), f"{what} extras", {}))
         out.append(material)
     return out
 
 
+def _thickness_network(stage: Usd.Stage, material: UsdShade.Material, texture: Texture, ref: TextureRef,
+                       thickness_factor: float, file_name: str, what: str) -> None:
+    """UsdPrimvarReader_float2 (the atlas UV set) -> UsdUVTexture (the thickness PNG, scaled to file
+    units) -> the Material's ``outputs:sss:thickness``."""
+    if ref.transform is not None:
+        raise ValueError(f"{what}: a thickness texture with KHR_texture_transform cannot be written to USD")
+    factor = finite_number(thickness_factor, f"{what} thickness_factor")
+    path = material.GetPath()
+    reader = UsdShade.Shader.Define(stage, path.AppendChild(THICKNESS_READER))
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", _T.String).Set(uv_primvar(ref.uv_set))
+    uv = reader.CreateOutput("result", _T.Float2)
+    tex = UsdShade.Shader.Define(stage, path.AppendChild(THICKNESS_TEXTURE))
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", _T.Asset).Set(Sdf.AssetPath("./" + file_name))
+    tex.CreateInput("st", _T.Float2).ConnectToSource(uv)
+    tex.CreateInput("sourceColorSpace", _T.Token).Set("raw")
+    tex.CreateInput("wrapS", _T.Token).Set(_WRAPS.get(texture.wrap_s, "repeat"))
+    tex.CreateInput("wrapT", _T.Token).Set(_WRAPS.get(texture.wrap_t, "repeat"))
+    # scale makes outputs:g the thickness in file units (the PNG holds thickness / factor)
+    tex.CreateInput("scale", _T.Float4).Set(Gf.Vec4f(factor, factor, factor, 1.0))
+    thickness = tex.CreateOutput("g", _T.Float)
+    material.CreateOutput(THICKNESS_OUTPUT, _T.Float).ConnectToSource(thickness)
+
+
 def _surface_inputs(src: SourceMaterial, scattering: ScatteringMaterial | None) -> list[tuple]:
-    """(input name, type, value) of the UsdPreviewSurface for one material."""
+    """(input name, type, value) of the UsdPreviewSurface for one material: a translucent one's
+    fallback colour and ior, opaque (its light transport is in the ``sss:`` data)."""
     what = f"material {src.name!r}"
     base = scattering.fallback.base_color if scattering is not None else src.base_color_factor[:3]
+    opacity = 1.0 if scattering is not None else src.base_color_factor[3]
     inputs = [
-        ("diffuseColor", Sdf.ValueTypeNames.Color3f, Gf.Vec3f(*_vec3(base, f"{what} base color"))),
-        ("roughness", Sdf.ValueTypeNames.Float, finite_number(src.roughness_factor, f"{what} roughness")),
-        ("metallic", Sdf.ValueTypeNames.Float, finite_number(src.metallic_factor, f"{what} metallic")),
-        ("opacity", Sdf.ValueTypeNames.Float, finite_number(src.base_color_factor[3], f"{what} opacity")),
-        ("emissiveColor", Sdf.ValueTypeNames.Color3f, Gf.Vec3f(*_vec3(src.emissive_factor, f"{what} emissive"))),
+        ("diffuseColor", _T.Color3f, Gf.Vec3f(*_vec3(base, f"{what} base color"))),
+        ("roughness", _T.Float, finite_number(src.roughness_factor, f"{what} roughness")),
+        ("metallic", _T.Float, finite_number(src.metallic_factor, f"{what} metallic")),
+        ("opacity", _T.Float, finite_number(opacity, f"{what} opacity")),
+        ("emissiveColor", _T.Color3f, Gf.Vec3f(*_vec3(src.emissive_factor, f"{what} emissive"))),
     ]
     ior = scattering.fallback.ior if scattering is not None else src.ior
     if ior is not None:
-        inputs.append(("ior", Sdf.ValueTypeNames.Float, finite_number(ior, f"{what} ior")))
+        inputs.append(("ior", _T.Float, finite_number(ior, f"{what} ior")))
     return inputs
 
 
-def _scattering_attributes(scattering: ScatteringMaterial, what: str) -> list[tuple]:
+def _scattering_attributes(scattering: ScatteringMaterial, mm_per_unit: float, what: str) -> list[tuple]:
     """The ``sss:`` attributes of a translucent material prim: (name, type, value).
 
     ``sss:schemaVersion``, ``sss:materialName``, ``sss:sourceName`` (strings), ``sss:units``
-    (``"1/mm"``), ``sss:sigmaSPrime`` and ``sss:sigmaA`` (float3, 1/mm), ``sss:eta`` (float), and
-    the standard-viewer fallback: ``sss:fallback:baseColor``, ``:attenuationColor``,
+    (``"1/mm"``), ``sss:sigmaSPrime`` and ``sss:sigmaA`` (float3, 1/mm), ``sss:eta`` (float); the
+    standard-viewer fallback: ``sss:fallback:baseColor``, ``:attenuationColor``,
     ``:diffuseTransmissionColor`` (color3f), ``:thicknessFactor``, ``:attenuationDistance``
     (float, file units; omitted when infinite, i.e. no attenuation), ``:diffuseTransmissionFactor``,
-    ``:ior`` (float).
+    ``:transmissionFactor``, ``:ior`` (float); and what an OpenPBR surface
+    (``ND_open_pbr_surface_surfaceshader``) would take: ``sss:openpbr:subsurfaceWeight`` (1),
+    ``:subsurfaceColor`` (color3f, the fallback's R_d), ``:subsurfaceRadius`` (float, file units:
+    the largest reduced mean free path 1/σ'_t over RGB / `mm_per_unit`) and ``:subsurfaceRadiusScale``
+    (color3f, each channel's mean free path / the radius).
     """
     mat, fb = scattering.material, scattering.fallback
-    T = Sdf.ValueTypeNames
+    mfp = np.asarray(mat.mean_free_path_mm, dtype=np.float64) / mm_per_unit
+    radius = float(mfp.max())
     out = [
-        (SSS + "schemaVersion", T.String, SCHEMA_VERSION),
-        (SSS + "materialName", T.String, mat.name),
-        (SSS + "sourceName", T.String, scattering.source_name),
-        (SSS + "units", T.String, "1/mm"),
-        (SSS + "sigmaSPrime", T.Float3, Gf.Vec3f(*_vec3(mat.sigma_s_prime, f"{what} sigma_s_prime"))),
-        (SSS + "sigmaA", T.Float3, Gf.Vec3f(*_vec3(mat.sigma_a, f"{what} sigma_a"))),
-        (SSS + "eta", T.Float, finite_number(mat.eta, f"{what} eta")),
-        (SSS + "fallback:baseColor", T.Color3f, Gf.Vec3f(*_vec3(fb.base_color, f"{what} fallback base_color"))),
-        (SSS + "fallback:thicknessFactor", T.Float, finite_number(fb.thickness_factor, f"{what} thickness_factor")),
-        (SSS + "fallback:attenuationColor", T.Color3f,
+        (SSS + "schemaVersion", _T.String, SCHEMA_VERSION),
+        (SSS + "materialName", _T.String, mat.name),
+        (SSS + "sourceName", _T.String, scattering.source_name),
+        (SSS + "units", _T.String, "1/mm"),
+        (SSS + "sigmaSPrime", _T.Float3, Gf.Vec3f(*_vec3(mat.sigma_s_prime, f"{what} sigma_s_prime"))),
+        (SSS + "sigmaA", _T.Float3, Gf.Vec3f(*_vec3(mat.sigma_a, f"{what} sigma_a"))),
+        (SSS + "eta", _T.Float, finite_number(mat.eta, f"{what} eta")),
+        (SSS + "fallback:baseColor", _T.Color3f, Gf.Vec3f(*_vec3(fb.base_color, f"{what} fallback base_color"))),
+        (SSS + "fallback:thicknessFactor", _T.Float, finite_number(fb.thickness_factor, f"{what} thickness_factor")),
+        (SSS + "fallback:attenuationColor", _T.Color3f,
          Gf.Vec3f(*_vec3(fb.attenuation_color, f"{what} attenuation_color"))),
-        (SSS + "fallback:diffuseTransmissionFactor", T.Float,
+        (SSS + "fallback:diffuseTransmissionFactor", _T.Float,
          finite_number(fb.diffuse_transmission_factor, f"{what} diffuse_transmission_factor")),
-        (SSS + "fallback:diffuseTransmissionColor", T.Color3f,
+        (SSS + "fallback:diffuseTransmissionColor", _T.Color3f,
          Gf.Vec3f(*_vec3(fb.diffuse_transmission_color, f"{what} diffuse_transmission_color"))),
-        (SSS + "fallback:ior", T.Float, finite_number(fb.ior, f"{what} fallback ior")),
+        (SSS + "fallback:transmissionFactor", _T.Float,
+         finite_number(fb.transmission_factor, f"{what} transmission_factor")),
+        (SSS + "fallback:ior", _T.Float, finite_number(fb.ior, f"{what} fallback ior")),
+        (SSS + "openpbr:subsurfaceWeight", _T.Float, 1.0),
+        (SSS + "openpbr:subsurfaceColor", _T.Color3f, Gf.Vec3f(*_vec3(fb.base_color, f"{what} fallback base_color"))),
+        (SSS + "openpbr:subsurfaceRadius", _T.Float, finite_number(radius, f"{what} subsurface radius")),
+        (SSS + "openpbr:subsurfaceRadiusScale", _T.Color3f, Gf.Vec3f(*_vec3(mfp / radius, f"{what} radius scale"))),
     ]
     if fb.attenuation_distance != math.inf:
-        out.append((SSS + "fallback:attenuationDistance", T.Float,
+        out.append((SSS + "fallback:attenuationDistance", _T.Float,
                     finite_number(fb.attenuation_distance, f"{what} attenuation_distance")))
     return out
 
 
-def _extras_json(extras: dict, root: Usd.Prim, where: str, named: bool = False) -> str:
-    """`extras` as JSON; numpy arrays become ``sss:tables:t<i>`` attributes on `root` (`named`:
-    ``sss:<key>:<key>...``, the array's keys in `extras`, e.g. ``sss:screen:offsets``)."""
-    tables: list[Usd.Attribute] = []
+def _extras_json(extras: dict, prim: Usd.Prim, where: str, primvars: dict[str, str]) -> str:
+    """`extras` as JSON. Numpy arrays become `_table` attributes of `prim` named ``sss:`` + their
+    keys joined by ``:`` (``sss:prt:directions``), referenced as ``{"attribute", "shape",
+    "crc32"}``; strings naming a glTF vertex attribute (keys of `primvars`) become its primvar name."""
+    names: set[str] = set()
 
     def convert(value, where: str, keys: tuple):
         if isinstance(value, dict):
@@ -389,9 +608,13 @@ def _extras_json(extras: dict, root: Usd.Prim, where: str, named: bool = False) 
         if isinstance(value, (list, tuple)):
             return [convert(v, f"{where}[{i}]", keys + (str(i),)) for i, v in enumerate(value)]
         if isinstance(value, np.ndarray) and value.ndim > 0:
-            name = SSS + ":".join(keys) if named else f"{SSS}tables:t{len(tables)}"
-            tables.append(_table(root, name, value, where))
-            return {"attribute": name, "shape": list(value.shape)}
+            name = SSS + ":".join(_identifier(k, "_") for k in keys)
+            if name in names:
+                raise ValueError(f"{where}: table name {name} is taken")
+            names.add(name)
+            return _table(prim, name, value, where)
+        if isinstance(value, str) and value in primvars:
+            return primvars[value]
         if isinstance(value, (np.generic, np.ndarray)):
             value = value.item()
         if isinstance(value, float) and not math.isfinite(value):
@@ -401,38 +624,167 @@ def _extras_json(extras: dict, root: Usd.Prim, where: str, named: bool = False) 
     return json.dumps(convert(extras, where, ()), sort_keys=True, allow_nan=False)
 
 
+def _table(prim: Usd.Prim, name: str, array: np.ndarray, where: str) -> dict:
+    """Write one table as an attribute typed by its shape; return its JSON reference.
+
+    Floats (stored float32): (n, k≤4) ``float<k>[]``, (n, 3, 3) ``matrix3d[]``, (n, 4, 4)
+    ``matrix4d[]``, else ``float[]``; integers within int32, 8-bit ones included: ``int[]`` whatever
+    the shape, because the crate format compresses ``int[]`` and stores ``uchar[]`` and
+    ``int2[]``..``int4[]`` raw (a bake's ``kernels.texelVertices``: 0.13 MB as ``int[]``, 2.4 MB as
+    ``int3[]``; thin_slab's int8 ``kernelCodes`` as ``uchar[]`` made its .usdc 16 MB larger). customData:
+    ``shape``, ``dtype`` (what a reader restores), ``source``. The reference's ``crc32`` is zlib's
+    CRC-32 of the restored array's little-endian bytes.
+    """
+    if array.size == 0:
+        raise ValueError(f"{where}: a table must not be empty, got shape {array.shape}")
+    shape = array.shape
+    k = shape[-1] if array.ndim == 2 else 1
+    if array.dtype.kind == "f":
+        restored = _float32(array, where)
+        if array.ndim == 3 and shape[1:] in ((3, 3), (4, 4)):
+            type_name = _T.Matrix3dArray if shape[1] == 3 else _T.Matrix4dArray
+            values = restored.astype(np.float64)
+        else:
+            type_name = _FLOAT_TYPES[k] if array.ndim == 2 and k in _FLOAT_TYPES else _T.FloatArray
+            values = restored if type_name != _T.FloatArray else restored.reshape(-1)
+    elif array.dtype.kind in "iu":
+        if array.min() < np.iinfo(np.int32).min or array.max() > np.iinfo(np.int32).max:
+            raise ValueError(f"{where}: a table's integers must fit int32, got [{array.min()}, {array.max()}]")
+        restored = array
+        type_name, values = _T.IntArray, array.astype(np.int32).reshape(-1)
+    else:
+        raise ValueError(f"{where}: a table must hold floats or integers, got dtype {array.dtype}")
+    attribute = prim.CreateAttribute(name, type_name, custom=True)
+    attribute.Set(type_name.type.pythonClass.FromNumpy(np.ascontiguousarray(values)))
+    attribute.SetCustomData({"shape": Vt.IntArray(list(shape)), "dtype": restored.dtype.name, "source": where})
+    return {"attribute": name, "shape": list(shape), "crc32": _crc32(restored)}
+
+
+def _crc32(array: np.ndarray) -> str:
+    little = np.ascontiguousarray(array, dtype=array.dtype.newbyteorder("<"))
+    return f"{zlib.crc32(little.tobytes()):08x}"
+
+
+def check_schema(stage: Usd.Stage) -> None:
+    """Refuse a stage whose default prim says it was written by another major sssbake schema.
+
+    Raises
+    ------
+    StaleDataError
+        ``"<file>: written by sssbake schema 1.x; rebake it with this version"``.
+    """
+    default = stage.GetDefaultPrim()
+    version = default.GetAttribute(SSS + "schemaVersion").Get() if default else None
+    if version and str(version).split(".")[0] != SCHEMA_VERSION.split(".")[0]:
+        major = str(version).split(".")[0]
+        raise StaleDataError(_layer_path(default), f"written by sssbake schema {major}.x; rebake it with this version")
+
+
 def technique_tables(prim: Usd.Prim, technique: str) -> dict | None:
-    """A Mesh or Material prim's ``sss:extras[technique]`` with every ``{"attribute": name, "shape":
-    ...}`` read into its array; None when the prim has no such data."""
-    attr = prim.GetAttribute("sss:extras")
+    """A Mesh or Material prim's ``sss:extras[technique]`` with every table reference read into its
+    array (shape and dtype as baked); primvar references stay primvar names. None when the prim
+    has no such data.
+
+    Raises
+    ------
+    StaleDataError
+        A table is missing, or its element count or CRC-32 no longer matches its reference; or the
+        file was written by another major schema (`check_schema`).
+    """
+    attr = prim.GetAttribute(SSS + "extras")
     if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdShade.Material)) or not attr:
         return None
     tables = json.loads(attr.Get()).get(technique)
     if tables is None:
         return None
-    return {k: np.asarray(prim.GetAttribute(v["attribute"]).Get()).reshape(v["shape"])
-            if isinstance(v, dict) and "attribute" in v else v for k, v in tables.items()}
+    check_schema(prim.GetStage())
+
+    def resolve(value, what: str):
+        if isinstance(value, dict) and "attribute" in value and "crc32" in value:
+            return _read_table(prim, value, what)
+        if isinstance(value, dict):
+            return {k: resolve(v, f"{what}.{k}") for k, v in value.items()}
+        return value
+
+    return resolve(tables, technique)
 
 
-def _table(root: Usd.Prim, name: str, array: np.ndarray, where: str) -> Usd.Attribute:
-    """A table as a flat float[] (float32), uchar[] (uint8), int[] (int8, int16) or uint[] attribute;
-    customData holds its shape."""
-    if array.size == 0:
-        raise ValueError(f"{where}: a table must not be empty, got shape {array.shape}")
-    if array.dtype.kind == "f":
-        values, type_name = Vt.FloatArray.FromNumpy(_float32(array, where).reshape(-1)), Sdf.ValueTypeNames.FloatArray
-    elif array.dtype == np.uint8:
-        values, type_name = Vt.UCharArray.FromNumpy(array.reshape(-1)), Sdf.ValueTypeNames.UCharArray
-    elif array.dtype in (np.int8, np.int16):
-        values, type_name = Vt.IntArray.FromNumpy(array.astype(np.int32).reshape(-1)), Sdf.ValueTypeNames.IntArray
-    elif array.dtype.kind in "iu" and array.min() >= 0 and array.max() <= np.iinfo(np.uint32).max:
-        values, type_name = Vt.UIntArray.FromNumpy(array.astype(np.uint32).reshape(-1)), Sdf.ValueTypeNames.UIntArray
-    else:
-        raise ValueError(f"{where}: a table must hold floats or integers in [0, 2^32), got dtype {array.dtype}")
-    attribute = root.CreateAttribute(name, type_name, custom=True)
-    attribute.Set(values)
-    attribute.SetCustomData({"shape": Vt.IntArray(list(array.shape)), "source": where})
-    return attribute
+def technique_data(prim: Usd.Prim, technique: str) -> tuple[dict, dict[str, np.ndarray]] | None:
+    """`technique_tables` in the glTF layout's vocabulary, with the per-vertex data it names.
+
+    Returns
+    -------
+    tables : dict
+        As `technique_tables`, primvar names replaced by the glTF attribute names they stand for
+        (their customData ``gltfName``), what the techniques' ``*_from_layout`` functions expect.
+    per_vertex : dict
+        glTF attribute name -> (n, k) float64 values (`primvar_values`) over the prim's n points.
+    None when the prim has no such data.
+
+    Raises
+    ------
+    StaleDataError
+        As `technique_tables`, or a named primvar is missing or has not one value per point.
+    """
+    tables = technique_tables(prim, technique)
+    if tables is None:
+        return None
+    points = UsdGeom.Mesh(prim).GetPointsAttr().Get() if prim.IsA(UsdGeom.Mesh) else None
+    n = 0 if points is None else len(points)
+    per_vertex: dict[str, np.ndarray] = {}
+    api = UsdGeom.PrimvarsAPI(prim)
+
+    def rename(value):
+        if isinstance(value, dict):
+            return {k: rename(v) for k, v in value.items()}
+        if isinstance(value, list):
+            return [rename(v) for v in value]
+        if isinstance(value, str) and value.startswith("primvars:" + SSS):
+            primvar = api.GetPrimvar(value.removeprefix("primvars:"))
+            if not primvar or not primvar.HasAuthoredValue():
+                raise _stale(prim, f"{prim.GetPath()} lacks {value}, which its sss:extras {technique} names")
+            values = primvar_values(primvar)
+            if len(values) != n:
+                raise _stale(prim, f"{prim.GetPath()}.{value} has {len(values)} values for {n} points")
+            gltf_name = str(primvar.GetAttr().GetCustomData().get("gltfName", value))
+            per_vertex[gltf_name] = values
+            return gltf_name
+        return value
+
+    return rename(tables), per_vertex
+
+
+def _read_table(prim: Usd.Prim, ref: dict, what: str) -> np.ndarray:
+    """The array a `_table` reference names, checked against its shape and CRC-32."""
+    name = ref["attribute"]
+    attribute = prim.GetAttribute(name)
+    raw = attribute.Get() if attribute else None
+    where = f"{prim.GetPath()} table {what} ({name})"
+    if raw is None:
+        raise _stale(prim, f"{where} is missing")
+    values = np.asarray(raw)
+    shape = tuple(int(s) for s in ref["shape"])
+    dtype = np.dtype(str(attribute.GetCustomData().get("dtype", values.dtype.name)))
+    if values.size != math.prod(shape):
+        raise _stale(prim, f"{where} has {values.size} values, its reference says shape {list(shape)}")
+    restored = values.astype(dtype).reshape(shape)
+    if _crc32(restored) != ref["crc32"]:
+        raise _stale(prim, f"{where} fails its CRC-32 ({_crc32(restored)}, reference {ref['crc32']})")
+    return restored
+
+
+def _layer_path(prim: Usd.Prim) -> str:
+    layer = prim.GetStage().GetRootLayer()
+    return layer.realPath or layer.identifier
+
+
+def _stale(prim: Usd.Prim, problem: str) -> StaleDataError:
+    """`StaleDataError` for `problem` in `prim`'s file, naming who most likely broke the data: the
+    layer's ``creator`` (or documentation) when it is not sssbake."""
+    layer = prim.GetStage().GetRootLayer()
+    creator = str(layer.customLayerData.get("creator") or layer.documentation or "")
+    tool = creator if creator and not creator.startswith("sssbake") else "a tool that rewrote the file's sss: data"
+    return StaleDataError(_layer_path(prim), f"{problem}; likely broken by {tool}: bake the asset again")
 
 
 def _check_references(asset: BakedAsset) -> None:

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from sssbake.pipeline.config import EMPTY_CONFIG, load_config
-from sssbake.pipeline.core.errors import SssbakeError, TradeoffError
+from sssbake.pipeline.core.errors import AssetError, SssbakeError, TradeoffError
 from sssbake.pipeline.options import BAKE_DEFAULTS, BakeOptions
 from sssbake.pipeline.techniques import registry
 
@@ -120,6 +120,9 @@ def _verify(args) -> int:
         position = None if args.light_pos is None else _vector(args.light_pos, "--light-pos")
         result = verify_file(args.file, args.technique, light, args.size, args.out, args.frames, position,
                              args.reference, args.lpv_steps, args.stock_viewer)
+    except AssetError as e:  # already "<path>: <problem>"
+        print(f"error: {e}", file=sys.stderr)
+        return 1
     except (OSError, ValueError) as e:  # the file's readers and verify raise ValueErrors without its path
         print(f"error: {args.file}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
         return 1
@@ -190,11 +193,46 @@ def _inspect(args) -> int:
         else:
             print(f"error: {path}: inspect reads .glb/.gltf/.usd/.usda/.usdc files", file=sys.stderr)
             return 2
+    except AssetError as e:  # already "<path>: <problem>"
+        print(f"error: {e}", file=sys.stderr)
+        return 1
     except Exception as e:  # any unreadable file is one line, not a traceback
         print(f"error: {path}: cannot inspect: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
         return 1
     print(json.dumps(info, indent=1, default=str))
     return 0
+
+
+def _view(args) -> int:
+    import threading
+    import webbrowser
+
+    from sssbake.exporters.inspect_gltf import inspect_glb
+    from sssbake.pipeline.view.serve import ViewServer, check_glb
+
+    check_glb(args.file)
+    inspect_glb(args.file)  # resolves every table and attribute: stale data is refused here, not drawn
+    server = ViewServer(args.file, args.port)
+    print(f"viewing {args.file} at {server.url} (Ctrl-C to stop)", flush=True)
+    if not args.no_open:
+        webbrowser.open(server.url)
+    try:
+        threading.Event().wait()  # the server runs in its own thread until Ctrl-C
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.close()
+    return 0
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port number 0-65535 (0: a free one), got {text!r}")
+    return value
 
 
 def _presets(_args) -> int:
@@ -304,6 +342,12 @@ def build_parser() -> argparse.ArgumentParser:
     _budget_arguments(pl)
     _allow_root_argument(pl)
     pl.set_defaults(func=_plan)
+
+    w = sub.add_parser("view", help="show a baked .glb in the browser with the three.js runtime (127.0.0.1 only)")
+    w.add_argument("file", help="a .glb written by sssbake bake")
+    w.add_argument("--port", type=_port, default=0, help="loopback port (default 0: a free one)")
+    w.add_argument("--no-open", action="store_true", help="print the URL, do not open a browser")
+    w.set_defaults(func=_view)
 
     p = sub.add_parser("presets", help="list the measured material presets (Jensen et al. 2001)")
     p.set_defaults(func=_presets)

@@ -2,16 +2,14 @@
 //   q_c(w) = sum_k w_k T_c[r_k](w) + sum_i dq_c,i y_i(w)
 // (shared tables: T_c[r] includes the point's detail term, SH evaluated at w itself)
 // Tables are 2-D textures holding a linear index i at texel (i % width, i / width)
-// (pipeline/prt_runtime.py `upload` makes them). Define PRT_COMPACT for data with 8-bit weights
-// (pipeline/prt_layout.py: one VEC4 uint8 attribute instead of two).
+// (pipeline/prt_runtime.py `upload` makes them). Define PRT_COMPACT for data with 8-bit weight
+// codes (pipeline/prt_layout.py; the attribute is the same float VEC3 for both).
 #include "sh_basis.glsl"
 
+in vec3 in_prt_ref;   // _SSS_PRT_REF: reference triangle, weight codes of w0, w1 (integers, float32)
 #ifdef PRT_COMPACT
-in uvec4 in_prt_ref;  // _SSS_PRT_REF: triangle = x + 256 y; weight codes = (z, w) - 128
 const float PRT_WEIGHT_MAX = 127.0;
 #else
-in uvec2 in_prt_ref;  // _SSS_PRT_REF: triangle = x + 65536 y
-in ivec2 in_prt_w;    // _SSS_PRT_W: weight codes
 const float PRT_WEIGHT_MAX = 32767.0;
 #endif
 
@@ -110,13 +108,8 @@ void prt_direction_weights(vec3 w, out ivec3 dirs, out vec3 beta) {
 
 // This vertex's reference triangle and weight codes, from its attributes.
 void prt_vertex_reference(out int triangle, out vec2 codes) {
-#ifdef PRT_COMPACT
-    triangle = int(in_prt_ref.x) + 256 * int(in_prt_ref.y);
-    codes = vec2(in_prt_ref.zw) - 128.0;
-#else
-    triangle = int(in_prt_ref.x) + 65536 * int(in_prt_ref.y);
-    codes = vec2(in_prt_w);
-#endif
+    triangle = int(in_prt_ref.x);  // exact: float32 holds integers below 2^24
+    codes = in_prt_ref.yz;
 }
 
 // Scattered radiance per unit irradiance (RGB) of the current vertex, number `vertex`, lit from

@@ -125,7 +125,8 @@ def test_bad_inputs_fail_alone_and_leave_nothing(tmp_path, capsys):
         assert rec["error"] in err
     leftovers = sorted(p.name for p in out.rglob("*") if p.is_file() and ".sssbake-cache" not in p.parts)
     # the batch lock (`batch._batch_lock`) stays: it is how a later batch knows whether it runs alone
-    assert leftovers == [".sssbake.lock", "batch.json", "good.glb", "good.report.json", "good.usdc"]
+    assert leftovers == [".sssbake.lock", "batch.json", "good.glb", "good.report.json", "good.thickness0.png",
+                         "good.usdc"]
 
 
 def test_missing_scale_is_refused_not_guessed(tmp_path, capsys):
@@ -190,7 +191,8 @@ def test_spectral_bake_writes_normals_variant_and_basis(baked_samples, tmp_path)
     import pygltflib
     from pxr import UsdGeom
 
-    from sssbake.exporters.gltf import dequantize, quantization_step, read_accessor, technique_tables
+    from sssbake.exporters.gltf import read_accessor
+    from sssbake.exporters.gltf_tables import load_sssbake_gltf, technique_tables
     from sssbake.exporters.gltf_validator import ValidatorUnavailable, find_validator
     from sssbake.pipeline.core.materials import preset
     from sssbake.pipeline.mesh.clean import clean_scene
@@ -220,12 +222,11 @@ def test_spectral_bake_writes_normals_variant_and_basis(baked_samples, tmp_path)
     pre = precompute_spectral(surface, 1.0, preset("marble"), SpectralPrecomputeOptions(eigenpairs=40))
     gltf = pygltflib.GLTF2.load(str(tmp_path / "sphere.glb"))
     attributes = gltf.meshes[0].primitives[0].attributes
-    stored = dequantize(read_accessor(gltf, attributes._SSS_NORMAL), True)
-    ids = read_accessor(gltf, attributes._SSS_SPECTRAL_VERTEX).astype(np.int64)
-    step = quantization_step("snorm16")
-    assert np.abs(stored - pre.normals[ids]).max() <= step + 1e-9
-    assert np.abs(np.linalg.norm(stored, axis=1) - 1.0).max() <= 2 * step
-    tables = technique_tables(gltf, gltf.meshes[0], "spectral")
+    stored = read_accessor(gltf, attributes._SSS_NORMAL).astype(np.float64)  # float32 VEC3
+    ids = read_accessor(gltf, attributes._SSS_SPECTRAL_VERTEX)[:, 0].astype(np.int64)  # (id, 0, 0)
+    assert np.abs(stored - pre.normals[ids]).max() <= 2.0**-24
+    assert np.abs(np.linalg.norm(stored, axis=1) - 1.0).max() <= 1e-6
+    tables = technique_tables(load_sssbake_gltf(tmp_path / "sphere.glb"), "meshes", 0, "spectral")
     n, m = tables["vertexCount"], tables["eigenpairs"]
     original = tables["basis"].reshape(n, m).astype(np.float64) @ tables["coefficients"] + tables["residual"]
     np.testing.assert_allclose(original, surface.normals, atol=2e-6)
@@ -233,16 +234,18 @@ def test_spectral_bake_writes_normals_variant_and_basis(baked_samples, tmp_path)
     variant = pygltflib.GLTF2.load(str(variant_path))
     v_attributes = variant.meshes[0].primitives[0].attributes
     v_normal = read_accessor(variant, v_attributes.NORMAL).astype(np.float64)
-    np.testing.assert_allclose(v_normal, dequantize(read_accessor(variant, v_attributes._SSS_NORMAL), True),
-                               atol=2 * step)
-    np.testing.assert_allclose(v_normal, stored, atol=2 * step)
-    assert "spectral" not in variant.meshes[0].extras["sssbake"]
-    assert variant.extras["sssbake"]["variant"] == "sss_normals"
+    np.testing.assert_allclose(v_normal, read_accessor(variant, v_attributes._SSS_NORMAL), atol=1e-6)
+    np.testing.assert_allclose(v_normal, stored, atol=1e-6)
+    assert "spectral" not in variant.meshes[0].extensions["SSSBAKE_subsurface"]
+    assert variant.extensions["SSSBAKE_subsurface"]["variant"] == "sss_normals"
 
     stage = Usd.Stage.Open(str(tmp_path / "sphere.usdc"))
     mesh = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
     primvar = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("sss:normal")
-    assert primvar.GetElementSize() == 3 and len(primvar.Get()) == 3 * len(UsdGeom.Mesh(mesh).GetPointsAttr().Get())
+    # normal3f[], one per point (Blender's USD import zeroes primvars with elementSize > 1)
+    assert str(primvar.GetTypeName()) == "normal3f[]" and primvar.GetElementSize() == 1
+    assert len(primvar.Get()) == len(UsdGeom.Mesh(mesh).GetPointsAttr().Get())
+    np.testing.assert_allclose(np.asarray(primvar.Get()), stored, atol=1e-6)
 
 
 @pytest.mark.parametrize("flags, needle", [
@@ -261,9 +264,7 @@ def test_bad_spectral_options_are_one_line(tmp_path, capsys, flags, needle):
 
 
 def test_screen_bake_exports_the_material_tables(tmp_path):
-    import pygltflib
-
-    from sssbake.exporters.gltf import technique_tables
+    from sssbake.exporters.gltf_tables import load_sssbake_gltf, technique_tables
 
     generate(tmp_path / "s")
     args = ["bake", str(tmp_path / "s" / "sphere.obj"), "-o", str(tmp_path / "o"), "--scale-mm", "1",
@@ -274,8 +275,9 @@ def test_screen_bake_exports_the_material_tables(tmp_path):
     (entry,) = report["screen"].values()
     assert entry["options"]["samples"] == 9 and entry["offsets"] == 11 and entry["tableError"] <= 0.01
     assert report["stages"]["screen"]["runs"] == 1 and "skipped" not in report["stages"]["screen"]
-    gltf = pygltflib.GLTF2.load(str(tmp_path / "o" / "sphere.glb"))
-    tables = next(t for t in (technique_tables(gltf, m, "screen") for m in gltf.materials) if t is not None)
+    data = load_sssbake_gltf(tmp_path / "o" / "sphere.glb")
+    tables = next(t for t in (technique_tables(data, "materials", m, "screen") for m in range(len(data.gltf.materials)))
+                  if t is not None)
     assert tables["offsets"].shape == (11, 2) and tables["uniform"] == 2
 
 

@@ -18,7 +18,7 @@ LAYERS = (
     ("pipeline.techniques",),  # each technique, then technique.py's protocol and registry.py (same layer)
     ("pipeline.options", "pipeline.config"),
     ("pipeline.planning",),
-    ("pipeline.bake", "pipeline.verify"),
+    ("pipeline.bake", "pipeline.verify", "pipeline.view"),
     ("pipeline.cli",),
 )
 

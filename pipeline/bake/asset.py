@@ -43,7 +43,7 @@ from sssbake.pipeline.core.errors import AssetError
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.atlas import Atlas
-from sssbake.pipeline.mesh.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
+from sssbake.pipeline.mesh.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute, padded
 from sssbake.pipeline.mesh.clean import CleanScene, clean_scene
 from sssbake.pipeline.mesh.confine import Confinement
 from sssbake.pipeline.mesh.digest import file_digest
@@ -58,10 +58,10 @@ from sssbake.pipeline.techniques.registry import TECHNIQUES
 from sssbake.pipeline.techniques.technique import MATERIAL, MESH, TechniqueBake
 
 # Bump a stage's version when its output for the same input changes (a technique's: its `stage_version`).
-STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 3, "thickness": 1, "thickness_map": 1,
+STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 4, "thickness": 1, "thickness_map": 2,
                   **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 3}
 
-LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
+LINEAR, CLAMP_TO_EDGE = 9729, 33071
 
 
 @dataclass(frozen=True)
@@ -138,9 +138,10 @@ def _png_gray(values: np.ndarray) -> bytes:
 
 def job_key(digest: str, options: BakeOptions, picks: dict | None = None) -> str:
     """What a bake's outputs are up to date with: the file's `digest`, the options, the stage
-    versions, sssbake's version and, from the budget check, its `picks`."""
+    versions, sssbake's version, the file schema's and, from the budget check, its `picks`."""
     return stage_key(digest, "bake", 1, {"options": options.to_json(), "stages": STAGE_VERSIONS,
-                                         "sssbake": version("sssbake"), **({"picks": picks} if picks is not None else {})})
+                                         "sssbake": version("sssbake"), "schema": SCHEMA_VERSION,
+                                         **({"picks": picks} if picks is not None else {})})
 
 
 def dependencies_hold(dependencies, confinement: Confinement) -> bool:
@@ -422,7 +423,8 @@ def _baked_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: 
     thick = stages.thickness.thickness
     tmax = max(float(stages.thickness_map.image.max()), float(thick.max()), 1e-30)
     b.images.append(Image(f"{mesh.name}_thickness", "image/png", _png_gray(stages.thickness_map.image / tmax)))
-    b.textures.append(Texture(len(b.images) - 1, LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE, CLAMP_TO_EDGE))
+    # No mipmaps: below the gutter's width a mip level blends neighbouring charts' thicknesses.
+    b.textures.append(Texture(len(b.images) - 1, LINEAR, LINEAR, CLAMP_TO_EDGE, CLAMP_TO_EDGE))
     uv_set = max(len(p.uvs) for p in mesh.primitives)
     prims = []
     for pi, (p, part) in enumerate(zip(mesh.primitives, stages.atlas.parts)):
@@ -437,8 +439,8 @@ def _baked_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: 
         if b.material_of.get(p.material) is not None:
             welded = surface.weld[pi][vm]
             b.attributes[(mi, pi)] = (
-                VertexAttribute("thickness", thick[welded] * mesh_mm, "mm", "float32",
-                                "distance through the object along the inward normal"),
+                VertexAttribute("thickness", padded(thick[welded] * mesh_mm), "mm", "float32",
+                                "distance through the object along the inward normal; components 1, 2 are 0"),
                 *(a for t in TECHNIQUES if t.name in results for a in t.vertex_attributes(results[t.name], welded)),
             )
     b.meshes[mi] = Mesh(mesh.name, tuple(prims))

@@ -215,7 +215,9 @@ class _Child:
         except OSError:  # never created
             return
         for name in names:
-            if temporary_target(name) in ours:
+            target = temporary_target(name)
+            # the .usdc's thickness textures: <stem>.thickness<k>.png
+            if target in ours or (target and target.startswith(out_base.name + ".thickness") and target.endswith(".png")):
                 (out_base.parent / name).unlink(missing_ok=True)
 
 

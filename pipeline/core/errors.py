@@ -51,3 +51,10 @@ class VerifyError(SssbakeError, ValueError):
 
 class TradeoffError(SssbakeError, ValueError):
     """``sssbake tradeoff`` cannot sweep this input (no unit to scale it by, no mesh)."""
+
+
+class StaleDataError(AssetError, ValueError):
+    """A file's sssbake data no longer matches the glTF data it points at (another tool renumbered,
+    deleted or rewrote a table or vertex attribute), or was written by an older schema: ``str(e)``
+    is ``"<path>: <what is stale> ...; likely broken by <tool>"`` on one line. Readers refuse such a
+    file rather than draw wrong pixels."""

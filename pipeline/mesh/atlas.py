@@ -41,6 +41,10 @@ JITTER_SEED = 0
 DIAGONAL = 100.0
 #: Atlas texels per side unless asked otherwise (the bake's ``atlas_resolution`` default).
 RESOLUTION = 512
+#: Atlas sides are multiples of this: block-compressed textures (BCn, ETC, ASTC 4x4, KTX2/Basis)
+#: need whole 4x4 blocks. An exact ``resolution`` would take a second xatlas charting of the mesh
+#: (minutes on large ones: xatlas' own size is an estimate), so the atlas is padded instead.
+BLOCK = 4
 
 
 class AtlasError(SssbakeError, ValueError):
@@ -76,8 +80,10 @@ class Atlas:
     parts : tuple of AtlasPart
         Same order as the input parts.
     width, height : int
-        Atlas size in texels. xatlas aims at ``resolution`` but grows the atlas when the charts
-        and their padding do not fit (benchmarks/README.md#xatlas-scale).
+        Atlas size in texels, multiples of `BLOCK`. xatlas aims at ``resolution`` but grows the
+        atlas when the charts and their padding do not fit (benchmarks/README.md#xatlas-scale);
+        its size is then rounded up to whole blocks, the UVs rescaled so every chart keeps its
+        texels.
     chart_count : int
         Charts over all parts.
     jittered : bool
@@ -195,18 +201,22 @@ def _signal_name(number: int) -> str:
 
 def _read_result(path: Path, n_parts: int, jittered: bool) -> Atlas:
     with np.load(path) as data:
+        width, height = int(data["width"]), int(data["height"])
+        padded = np.array([-(-width // BLOCK) * BLOCK, -(-height // BLOCK) * BLOCK])
+        # UVs are fractions of the atlas: scaled by old / new size, each texel keeps its place.
+        shrink = np.array([width, height], dtype=np.float64) / padded
         parts = tuple(
             AtlasPart(
                 vmapping=data[f"vmapping_{i}"].astype(np.int64),
                 faces=data[f"faces_{i}"].astype(np.int64).reshape(-1, 3),
-                uvs=data[f"uvs_{i}"].astype(np.float64).reshape(-1, 2),
+                uvs=data[f"uvs_{i}"].astype(np.float64).reshape(-1, 2) * shrink,
             )
             for i in range(n_parts)
         )
         return Atlas(
             parts=parts,
-            width=int(data["width"]),
-            height=int(data["height"]),
+            width=int(padded[0]),
+            height=int(padded[1]),
             chart_count=int(data["chart_count"]),
             jittered=jittered,
             worker_peak_rss_mb=float(data["peak_rss_mb"]),

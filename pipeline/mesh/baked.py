@@ -12,7 +12,7 @@ import numpy as np
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.mesh.scene import Scene, TextureRef
 
-SCHEMA_VERSION = "1.8.0"
+SCHEMA_VERSION = "2.0.0"
 
 
 @dataclass(frozen=True, eq=False)
@@ -34,8 +34,8 @@ class VertexAttribute:
     encoding : str
         How glTF stores it: ``"float32"``, a normalized type ``"snorm8"``, ``"snorm16"``,
         ``"unorm8"``, ``"unorm16"`` (data must then lie in [-1, 1] or [0, 1]), or ``"uint8"``,
-        ``"uint16"`` (integers in [0, 255], [0, 65535], e.g. indices). USD stores int[] for those
-        two, float[] otherwise.
+        ``"uint16"`` (integers in [0, 255], [0, 65535], e.g. indices). USD's primvar type follows
+        from it (`exporters.usd.primvar_layout`).
     description : str
     """
 
@@ -74,6 +74,9 @@ class Fallback:
     diffuse_transmission_factor : float in [0, 1]
     diffuse_transmission_color : (3,) float in [0, 1]
     ior : float
+    transmission_factor : float in [0, 1]
+        KHR_materials_transmission's factor: the share of the light the object transmits
+        rather than reflects diffusely (0: opaque).
     """
 
     base_color: tuple[float, float, float]
@@ -84,6 +87,7 @@ class Fallback:
     diffuse_transmission_factor: float
     diffuse_transmission_color: tuple[float, float, float]
     ior: float
+    transmission_factor: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -112,14 +116,15 @@ class BakedAsset:
     scale_mm : dict
         Mesh index -> millimetres per file unit in world space (node scale included).
     extras : dict
-        Asset-level JSON written under ``extras.sssbake`` (schema version added by exporters).
+        Asset-level JSON written into the root's ``SSSBAKE_subsurface`` extension (glTF; schema
+        version added by exporters).
     mesh_extras : dict
         Mesh index -> JSON-able dict of technique data for that mesh (e.g. ``{"prt": {...}}``),
-        written into the mesh's ``extras.sssbake`` (glTF) and onto each of its USD Mesh prims.
+        written into the mesh's ``SSSBAKE_subsurface`` extension (glTF) and onto each of its USD Mesh prims.
         Numpy arrays in it become binary tables (glTF accessors, USD array attributes).
     material_extras : dict
         Scene material index -> JSON-able dict of technique data for that material (e.g.
-        ``{"screen": {...}}``), written into the material's ``extras.sssbake`` (glTF) and onto its
+        ``{"screen": {...}}``), written into the material's ``SSSBAKE_subsurface`` extension (glTF) and onto its
         USD Material prim (``sss:extras`` JSON, tables as ``sss:<technique>:<key>`` attributes).
     """
 
@@ -152,6 +157,24 @@ def index_table(values: np.ndarray) -> np.ndarray:
     return values.astype(np.uint16 if values.size == 0 or values.max() < 65536 else np.int64)
 
 
+#: Components of every vertex attribute sssbake writes, all float32: Blender's glTF importer (4.5)
+#: keeps custom attributes exactly only as float32 (others it drops or turns into 8-bit sRGB
+#: colours), and crashes, depending on the hash seed, on a mesh whose custom attributes differ in
+#: width; Bevy and Godot take float32 of any width (benchmarks/README.md#vertex-attribute-encodings).
+ATTRIBUTE_WIDTH = 3
+#: Integers float32 holds exactly: ids stored in float attributes stay below this.
+FLOAT_INTEGERS = 1 << 24
+
+
+def padded(values: np.ndarray) -> np.ndarray:
+    """(p, `ATTRIBUTE_WIDTH`) float64: (p,) or (p, k <= 3) values with zero columns appended."""
+    values = np.asarray(values, dtype=np.float64)
+    values = values.reshape(len(values), -1)
+    if values.shape[1] > ATTRIBUTE_WIDTH:
+        raise ValueError(f"vertex attribute with {values.shape[1]} components; at most {ATTRIBUTE_WIDTH}")
+    return np.pad(values, ((0, 0), (0, ATTRIBUTE_WIDTH - values.shape[1])))
+
+
 def welded_vertex_attribute(key: str, vertices: np.ndarray, count: int, description: str) -> VertexAttribute:
     """A per-vertex attribute holding each render vertex's welded surface vertex.
 
@@ -161,17 +184,17 @@ def welded_vertex_attribute(key: str, vertices: np.ndarray, count: int, descript
     vertices : (p,) int64
         The welded vertex of each render vertex of the primitive (``Surface.weld[j][vmapping]``).
     count : int
-        Welded surface vertices of the mesh.
+        Welded surface vertices of the mesh, below `FLOAT_INTEGERS`.
     description : str
 
     Returns
     -------
     VertexAttribute
-        (p,) uint16 when `count` < 65536, else (p, 2) uint16 ``lo, hi`` with ``vertex = lo + 65536 · hi``
-        (glTF has no 32-bit integer vertex attributes).
+        (p, 3) float32 ``(vertex, 0, 0)`` (`ATTRIBUTE_WIDTH`; float32 holds the ids exactly).
     """
     vertices = np.asarray(vertices, dtype=np.int64)
     if vertices.ndim != 1 or (vertices.size and (vertices.min() < 0 or vertices.max() >= count)):
         raise ValueError(f"{key}: vertices must be (p,) indices of the {count} welded vertices")
-    stored = vertices if count < 65536 else np.column_stack([vertices % 65536, vertices // 65536])
-    return VertexAttribute(key, stored.astype(np.float64), "", "uint16", description)
+    if count > FLOAT_INTEGERS:
+        raise ValueError(f"{key}: {count} welded vertices; float32 vertex attributes hold ids below {FLOAT_INTEGERS}")
+    return VertexAttribute(key, padded(vertices), "", "float32", description)

@@ -487,6 +487,9 @@ def _check_ply_binary_faces(path: str, elements: list, body: bytes, order: str) 
     if layout is None:
         return
     e, props, at = layout
+    kinds = [k for _, _, element_props in elements[:e + 1] for _, _, k in element_props] + [props[at][1]]
+    if any(k not in PLY_TYPES for k in kinds):
+        return  # a type PLY does not have: trimesh's to report
     dtype = lambda kind: np.dtype(PLY_TYPES[kind]).newbyteorder(order)  # noqa: E731
     start = 0
     for _, count, element_props in elements[:e]:

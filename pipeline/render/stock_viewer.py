@@ -3,8 +3,10 @@
 pyrender (0.1.45), a renderer independent of sssbake's shaders, draws the file the way a stock
 PBR viewer does: trimesh reads the glTF (geometry, node transforms, NORMAL, TEXCOORD_0 and the
 core metallic-roughness material; its ``baseColorFactor`` is kept as 8-bit RGBA), pyrender ignores
-``KHR_materials_volume``, ``KHR_materials_diffuse_transmission`` and sssbake's data, and shades
-with its own GLSL. For the fallback (base colour R_d, metallic 0) that is Lambert's
+``KHR_materials_transmission``, ``KHR_materials_volume``, ``KHR_materials_diffuse_transmission`` and
+sssbake's data, and shades with its own GLSL: a viewer with no translucency at all. For the
+fallback (base colour R_d, metallic 0; three.js takes the transmission factor's share out of it,
+tests/render/test_fallback_three.py) that is Lambert's
 c_diff / π, c_diff = 0.96 · base colour, weighted by 1 - F (Schlick, F0 = 0.04), plus a specular
 lobe F G D / (4 n·l n·v), D GGX with α = ``roughnessFactor``², all times the
 light's irradiance and n·l. A directional light casts pyrender's own shadow map, since the

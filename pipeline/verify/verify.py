@@ -24,8 +24,8 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
-import pygltflib
 
+from sssbake.exporters.gltf_tables import SssbakeGltf, load_sssbake_gltf
 from sssbake.pipeline.core.errors import VerifyError
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.reference import Light, reference_scattering
@@ -107,7 +107,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     if point is not None and (point.shape != (3,) or not np.all(np.isfinite(point))):
         raise VerifyError(f"verify: light position must be three finite numbers, got {light_pos}")
     data = hooks.read(path)
-    gltf = pygltflib.GLTF2.load(str(path))
+    file = load_sssbake_gltf(path, required=True)
     scene = load_scene(str(path))
     instances = []
     for mi, worlds in sorted(scene.mesh_instances().items()):
@@ -116,7 +116,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         instances += [(mi, unit, world) for unit in units for world in worlds]
     if not instances:
         raise VerifyError(f"verify: {path} has no drawable primitive with {technique} data")
-    mm_world = {float((gltf.meshes[mi].extras or {}).get("sssbake", {})["scaleMm"]) for mi, _, _ in instances}
+    mm_world = {_scale_mm(file, mi) for mi, _, _ in instances}
     if point is not None:
         scales = [abs(np.linalg.det(world[:3, :3])) for _, _, world in instances]
         if len(mm_world) > 1 or not np.allclose(scales, 1.0, rtol=1e-6):
@@ -136,8 +136,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     for mi, unit, world in instances:
         prims = [scene.meshes[mi].primitives[pi] for pi in unit]
         prim = merged_primitive(prims)
-        material = _material(gltf, prims[0].material, path)
-        mm = float(gltf.meshes[mi].extras["sssbake"]["scaleMm"])
+        material = _material(file, prims[0].material)
+        mm = _scale_mm(file, mi)
         # Seam vertices share positions: weld them, or a zero distance would read Rd(0).
         diagonal = float(np.linalg.norm(np.ptp(prim.positions, axis=0)))
         surface = weld_surface([prim], WELD_TOLERANCE * diagonal)
@@ -158,7 +158,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
             towards = to_light / np.maximum(distance, 1e-300)[:, None]
             weight = visible * intensity / np.maximum(distance * mm, 1e-300) ** 2
         base = dict(positions=prim.positions, normals=prim.normals, faces=prim.faces, model=world, eta=material.eta)
-        at = VerifyUnit(mi, tuple(unit), prim, surface, weld, mm, material, gltf.meshes[mi].extras["sssbake"], base,
+        at = VerifyUnit(mi, tuple(unit), prim, surface, weld, mm, material, file.extension(file.gltf.meshes[mi]), base,
                         partial(_lambert_q, towards=towards, weight=weight))
         own = hooks.reference_item(path, at, data, runtime, memo)
         if own is not None:
@@ -303,12 +303,20 @@ def _lambert_q(field: np.ndarray, towards: np.ndarray, weight: np.ndarray) -> np
     return np.repeat((np.clip(np.sum(field * towards, axis=1), 0.0, None) * weight)[:, None], 3, axis=1)
 
 
-def _material(gltf: pygltflib.GLTF2, index: int | None, path: Path) -> Material:
+def _scale_mm(file: SssbakeGltf, mesh: int) -> float:
+    """Mesh `mesh`'s millimetres per file unit, from its extension object."""
+    scale = (file.extension(file.gltf.meshes[mesh]) or {}).get("scaleMm")
+    if not isinstance(scale, (int, float)) or not scale > 0:
+        raise VerifyError(f"verify: {file.path}: mesh {mesh} has no positive SSSBAKE_subsurface.scaleMm")
+    return float(scale)
+
+
+def _material(file: SssbakeGltf, index: int | None) -> Material:
     data = None
     if index is not None:
-        data = ((gltf.materials[index].extras or {}).get("sssbake") or {}).get("material")
+        data = (file.extension(file.gltf.materials[index]) or {}).get("material")
     if not data:
-        raise VerifyError(f"verify: {path}: a scattering primitive's material has no extras.sssbake.material")
+        raise VerifyError(f"verify: {file.path}: a scattering primitive's material has no SSSBAKE_subsurface.material")
     return Material(data["name"], tuple(data["sigma_s_prime"]), tuple(data["sigma_a"]), float(data["eta"]))
 
 

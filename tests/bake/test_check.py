@@ -85,8 +85,8 @@ def test_the_check_bakes_again_keeps_the_cheapest_within_and_is_then_up_to_date(
         report = json.loads(glb.with_suffix(".report.json").read_text())
         budget = report["plan"][0]["params"]["prt_byte_budget"]
         seen.append(budget)
-        # scripted figures: more bytes, less error; within the budget from 24 B/vertex on
-        return {"rmse_image": 0.5 / budget, "bytes_per_vertex": report["prt"]["leaf.obj"]["bytesPerVertex"]["total"],
+        # scripted figures: more bytes, less error; within the budget from 35 B/vertex on
+        return {"rmse_image": 0.7 / budget, "bytes_per_vertex": report["prt"]["leaf.obj"]["bytesPerVertex"]["total"],
                 "frame_ms_sss": 1.0}
 
     monkeypatch.setattr(plan_check, "check_technique", scripted)
@@ -107,7 +107,7 @@ def test_the_check_bakes_again_keeps_the_cheapest_within_and_is_then_up_to_date(
     assert on_disk["plan"][0]["pilot"]["pick"] == kept["picks"].get("leaf.obj/sssbake_default", pilot["chosen"])
     assert on_disk["prt"]["leaf.obj"]["bytesPerVertex"]["total"] == kept["bytes_per_vertex"]["prt"]
     assert on_disk["prt"]["leaf.obj"]["bytesPerVertex"]["total"] <= on_disk["plan"][0]["params"]["prt_byte_budget"]
-    np.testing.assert_allclose(0.5 / on_disk["plan"][0]["params"]["prt_byte_budget"], max(kept["rmse_image"].values()))
+    np.testing.assert_allclose(0.7 / on_disk["plan"][0]["params"]["prt_byte_budget"], max(kept["rmse_image"].values()))
     calls = len(seen)
     again = bake_within_budget(src, options, out, StageCache(str(tmp_path / "cache")))
     assert again.up_to_date and len(seen) == calls  # nothing checked twice

@@ -75,4 +75,5 @@ def test_full_disk_fails_the_assets_that_do_not_fit_and_leaves_no_part(tmp_path)
     assert len(err) == 2 and err[1].startswith("1 baked, 1 failed")
     lines = run.stdout.splitlines()
     assert lines[0] == "rc=1"
-    assert sorted(lines[1:]) == ["./.sssbake.lock", "./batch.json", "./small.glb", "./small.report.json", "./small.usdc"]
+    assert sorted(lines[1:]) == ["./.sssbake.lock", "./batch.json", "./small.glb", "./small.report.json",
+                                 "./small.thickness0.png", "./small.usdc"]

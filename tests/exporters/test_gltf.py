@@ -1,4 +1,5 @@
-"""glTF export: geometry, sssbake attributes, materials and extras survive a round trip."""
+"""glTF export: geometry, sssbake attributes, materials and the SSSBAKE_subsurface extension survive a
+round trip."""
 
 import io
 import json
@@ -17,6 +18,7 @@ from sssbake.exporters.gltf import (
     ARRAY_BUFFER,
     BYTE,
     ELEMENT_ARRAY_BUFFER,
+    EXTENSION,
     FLOAT,
     UNSIGNED_INT,
     UNSIGNED_SHORT,
@@ -26,6 +28,7 @@ from sssbake.exporters.gltf import (
     to_glb,
     write_glb,
 )
+from sssbake.exporters.gltf_tables import load_sssbake_gltf, technique_tables
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.mesh.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
 from sssbake.pipeline.mesh.scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef
@@ -154,11 +157,11 @@ def test_materials_extensions_and_extras(tmp_path):
         "diffuseTransmissionFactor": 0.4, "diffuseTransmissionColorFactor": [1.0, 0.95, 0.9],
     }
     assert ext["KHR_materials_ior"] == {"ior": 1.5}
-    assert set(gltf.extensionsUsed) == {
-        "KHR_materials_volume", "KHR_materials_diffuse_transmission", "KHR_materials_ior",
-    }
-    assert not gltf.extensionsRequired
-    assert marble.extras["sssbake"] == {
+    assert {EXTENSION, "KHR_materials_volume", "KHR_materials_diffuse_transmission",
+            "KHR_materials_ior"} <= set(gltf.extensionsUsed)
+    assert not gltf.extensionsRequired  # a viewer that ignores sssbake still shows the fallback
+    assert marble.extras == {}
+    assert marble.extensions[EXTENSION] == {
         "schemaVersion": SCHEMA_VERSION,
         "material": {**preset("marble").to_json(), "units": "1/mm"},
         "sourceName": "Marble",
@@ -230,7 +233,8 @@ def test_asset_extras_and_tables():
     asset = icosphere_asset(extras={"warnings": [], "note": "", "profile": {"radii": table, "ids": np.array([3, 1])},
                                     "m": matrices, "count": np.int64(5)})
     gltf = pygltflib.GLTF2.load_from_bytes(to_glb(asset)[0])
-    root = gltf.extras["sssbake"]
+    assert gltf.extras == {}
+    root = gltf.extensions[EXTENSION]
     assert root["schemaVersion"] == SCHEMA_VERSION
     assert root["warnings"] == [] and root["note"] == "" and root["count"] == 5
     assert root["scaleMm"] == {"sphere": 10.0}
@@ -242,8 +246,15 @@ def test_asset_extras_and_tables():
     assert ids.dtype == np.uint32 and ids.tolist() == [3, 1]
     assert gltf.accessors[root["m"]["accessor"]].type == "MAT4"
     np.testing.assert_array_equal(read_accessor(gltf, root["m"]["accessor"]), matrices)
-    assert gltf.meshes[0].extras["sssbake"] == {"schemaVersion": SCHEMA_VERSION, "scaleMm": 10.0}
-    assert gltf.meshes[1].extras == {}
+    # Table references name their accessor and describe it.
+    radii = root["profile"]["radii"]
+    assert radii["name"] == "sssbake/asset/profile/radii" == gltf.accessors[radii["accessor"]].name
+    assert (radii["count"], radii["type"], radii["componentType"]) == (4, "VEC3", FLOAT)
+    assert root["m"]["name"] == "sssbake/asset/m" and root["m"]["type"] == "MAT4"
+    assert gltf.meshes[0].extensions[EXTENSION] == {
+        "schemaVersion": SCHEMA_VERSION, "scaleMm": 10.0, "vertexCounts": [42],
+        "attributeTypes": {"_SSS_REF": "VEC4", "_SSS_U16": "VEC2", "_SSS_W": "VEC3", "_THICKNESS": "SCALAR"}}
+    assert gltf.meshes[1].extras == {} and gltf.meshes[1].extensions == {}
     assert gltf.asset.generator.startswith("sssbake ")
 
 
@@ -253,10 +264,11 @@ def test_extras_match_the_documented_schema():
     assert schema["version"] == SCHEMA_VERSION
     gltf = pygltflib.GLTF2.load_from_bytes(to_glb(icosphere_asset())[0])
     validator = jsonschema.Draft202012Validator(schema)
-    validator.validate(gltf.extras["sssbake"])
+    validator.validate(gltf.extensions[EXTENSION])
     sub = {"$schema": schema["$schema"], "$defs": schema["$defs"]}
-    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/material"}).validate(gltf.materials[0].extras["sssbake"])
-    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(gltf.meshes[0].extras["sssbake"])
+    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/material"}).validate(
+        gltf.materials[0].extensions[EXTENSION])
+    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(gltf.meshes[0].extensions[EXTENSION])
 
 
 def test_uint32_indices_from_65536_vertices():
@@ -390,8 +402,9 @@ def test_mesh_extras_and_integer_encodings_round_trip():
     asset = replace(asset, vertex_attributes={(0, 0): asset.vertex_attributes[(0, 0)] + (index,)},
                     mesh_extras={0: {"prt": {"codes": codes, "signed": signed, "order": 3}}})
     gltf = pygltflib.GLTF2.load_from_bytes(to_glb(asset)[0])
-    mesh = gltf.meshes[0].extras["sssbake"]
+    mesh = gltf.meshes[0].extensions[EXTENSION]
     assert mesh["scaleMm"] == 10.0 and mesh["prt"]["order"] == 3
+    assert mesh["prt"]["codes"]["name"] == "sssbake/mesh0/prt/codes"
     stored = read_accessor(gltf, mesh["prt"]["codes"]["accessor"])
     assert stored.dtype == np.uint8 and gltf.accessors[mesh["prt"]["codes"]["accessor"]].type == "VEC3"
     np.testing.assert_array_equal(stored, codes)
@@ -427,8 +440,8 @@ def spectral_parts(prim: Primitive, m: int = 5) -> tuple[np.ndarray, tuple[Verte
     return normals, spectral_vertex_attributes(normals, np.arange(n), True), spectral_tables(spectrum, 0.7, 0.4)
 
 
-def test_spectral_normals_and_tables_round_trip_and_validate():
-    from sssbake.exporters.gltf import SHORT, technique_tables
+def test_spectral_normals_and_tables_round_trip_and_validate(tmp_path):
+    from sssbake.exporters.gltf import ENCODINGS
     from sssbake.exporters.gltf_validator import ValidatorUnavailable, validate_glb
 
     asset = icosphere_asset()
@@ -439,16 +452,20 @@ def test_spectral_normals_and_tables_round_trip_and_validate():
     gltf = pygltflib.GLTF2.load_from_bytes(data)
     index = gltf.meshes[0].primitives[0].attributes._SSS_NORMAL
     acc = gltf.accessors[index]
-    assert (acc.componentType, acc.type, acc.normalized) == (SHORT, "VEC3", True)
-    assert gltf.bufferViews[acc.bufferView].byteStride == 8 and summary["bytes_per_vertex"]["_SSS_NORMAL"] == 8
-    decoded = dequantize(read_accessor(gltf, index), True)
-    assert np.abs(decoded - normals).max() <= quantization_step("snorm16") + 1e-12
-    read = technique_tables(gltf, gltf.meshes[0], "spectral")
+    (encoding,) = [a.encoding for a in attrs if a.gltf_name == "_SSS_NORMAL"]
+    component, dtype, normalized = ENCODINGS[encoding]
+    assert (acc.componentType, acc.type, bool(acc.normalized)) == (component, "VEC3", normalized)
+    stride = -(-3 * np.dtype(dtype).itemsize // 4) * 4
+    assert gltf.bufferViews[acc.bufferView].byteStride == stride == summary["bytes_per_vertex"]["_SSS_NORMAL"]
+    decoded = dequantize(read_accessor(gltf, index), normalized)
+    assert np.abs(decoded - normals).max() <= quantization_step(encoding) + 1e-7  # float32: relative 2^-24
+    (tmp_path / "a.glb").write_bytes(data)
+    read = technique_tables(load_sssbake_gltf(tmp_path / "a.glb"), "meshes", 0, "spectral")
     for name, value in tables.items():
         np.testing.assert_array_equal(read[name], value)
     schema = json.loads(resources.files("sssbake.exporters").joinpath("schema/sssbake.schema.json").read_text())
     sub = {"$schema": schema["$schema"], "$defs": schema["$defs"]}
-    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(gltf.meshes[0].extras["sssbake"])
+    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(gltf.meshes[0].extensions[EXTENSION])
     try:
         report = validate_glb(data)
     except ValidatorUnavailable as exc:
@@ -459,22 +476,22 @@ def test_spectral_normals_and_tables_round_trip_and_validate():
 def test_screen_tables_on_the_material_round_trip_and_validate(tmp_path):
     from fixtures import bake_screen_sphere
 
-    from sssbake.exporters.gltf import FLOAT, technique_tables
     from sssbake.exporters.gltf_validator import ValidatorUnavailable, validate_glb
     from sssbake.pipeline.techniques.screen.samples import screen_samples
 
     result, options = bake_screen_sphere(tmp_path, screen_samples=12, screen_uniform=4)
     data = (tmp_path / "ball.glb").read_bytes()
     gltf = pygltflib.GLTF2.load_from_bytes(data)
-    (material,) = [m for m in gltf.materials if (m.extras or {}).get("sssbake")]
-    assert "screen" not in (gltf.meshes[0].extras.get("sssbake") or {})
-    tables = technique_tables(gltf, material, "screen")
+    (index,) = [i for i, m in enumerate(gltf.materials) if EXTENSION in m.extensions]
+    material = gltf.materials[index]
+    assert "screen" not in gltf.meshes[0].extensions[EXTENSION]
+    tables = technique_tables(load_sssbake_gltf(tmp_path / "ball.glb"), "materials", index, "screen")
     expected = screen_samples(preset("marble"), options.technique_options("screen").samples_options())
     assert (tables["technique"], tables["samples"], tables["uniform"], tables["driver"]) == (
         "screen", 12, 4, expected.driver)
     assert tables["tableReachMm"] == pytest.approx(expected.table_reach_mm, rel=1e-12)
     for name, value in (("offsets", expected.offsets), ("weights", expected.weights), ("rdTable", expected.table.T)):
-        acc = gltf.accessors[material.extras["sssbake"]["screen"][name]["accessor"]]
+        acc = gltf.accessors[material.extensions[EXTENSION]["screen"][name]["accessor"]]
         assert acc.componentType == FLOAT and acc.bufferView is not None
         np.testing.assert_array_equal(tables[name], value.astype(np.float32))
     assert tables["offsets"].shape == (16, 2) and tables["rdTable"].shape[1] == 3
@@ -485,7 +502,7 @@ def test_screen_tables_on_the_material_round_trip_and_validate(tmp_path):
     assert result.report["stages"]["screen"]["runs"] == 1
     schema = json.loads(resources.files("sssbake.exporters").joinpath("schema/sssbake.schema.json").read_text())
     sub = {"$schema": schema["$schema"], "$defs": schema["$defs"]}
-    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/material"}).validate(material.extras["sssbake"])
+    jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/material"}).validate(material.extensions[EXTENSION])
     try:
         checked = validate_glb(data)
     except ValidatorUnavailable as exc:

@@ -23,13 +23,15 @@ def test_inspect_our_output(tmp_path):
     assert sphere["scaleMm"] == 10.0 and sphere["material"] == "/ico/Materials/Marble"
     thickness = sphere["primvars"]["primvars:sss:thickness"]
     assert thickness == {"type": "float[]", "interpolation": "vertex", "elementSize": 1, "count": n, "bytes": 4 * n,
-                         "bytesPerVertex": 4.0, "unit": "mm", "description": "thickness along -n"}
-    direction = sphere["primvars"]["primvars:sss:direction"]
-    assert direction["elementSize"] == 3 and direction["count"] == 3 * n and direction["bytesPerVertex"] == 12.0
-    assert sphere["bytesPerVertex"] == 16.0
+                         "bytesPerVertex": 4.0, "unit": "mm", "description": "thickness along -n",
+                         "encoding": "float32", "components": 1, "packedBits": None}
+    direction = sphere["primvars"]["primvars:sss:direction"]  # snorm8 x 3 packed into one int
+    assert direction["type"] == "int[]" and direction["elementSize"] == 1 and direction["count"] == n
+    assert direction["bytesPerVertex"] == 4.0 and direction["packedBits"] == 8 and direction["components"] == 3
+    assert sphere["bytesPerVertex"] == 8.0
     assert plate["primvars"] == {} and plate["material"] == "/ico/Materials/Steel"
-    assert info["bytesPerVertex"] == {"primvars:sss:thickness": 4.0, "primvars:sss:direction": 12.0,
-                                      "total": pytest.approx(16 * n / (n + 3))}
+    assert info["bytesPerVertex"] == {"primvars:sss:thickness": 4.0, "primvars:sss:direction": 4.0,
+                                      "total": pytest.approx(8 * n / (n + 3))}
 
     (marble,) = info["materials"]
     assert marble["path"] == "/ico/Materials/Marble"

@@ -9,7 +9,8 @@ import trimesh
 from fixtures import FALLBACK
 from pxr import Usd, UsdGeom, UsdShade
 
-from sssbake.exporters.usd import meters_per_unit, write_usdc
+from sssbake.exporters.gltf import dequantize, quantize
+from sssbake.exporters.usd import meters_per_unit, primvar_values, technique_data, write_usdc
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.mesh.baked import SCHEMA_VERSION, BakedAsset, ScatteringMaterial, VertexAttribute
 from sssbake.pipeline.mesh.scene import Mesh, Node, Primitive, Scene, SourceMaterial
@@ -93,18 +94,25 @@ def test_geometry_and_primvars_round_trip_exactly(tmp_path):
     assert str(pv.GetTypeName()) == "float[]" and pv.GetInterpolation() == UsdGeom.Tokens.vertex
     assert pv.GetElementSize() == 1 and not pv.HasAuthoredElementSize()
     np.testing.assert_array_equal(np.asarray(pv.Get()), thickness.data.astype(np.float32))
-    assert pv.GetAttr().GetCustomData() == {"unit": "mm", "description": "thickness along -n"}
+    assert pv.GetAttr().GetCustomData() == {"unit": "mm", "description": "thickness along -n", "encoding": "float32",
+                                            "components": 1, "gltfName": "_THICKNESS"}
     assert pv.GetAttr().GetDocumentation() == "thickness along -n"
+    np.testing.assert_array_equal(primvar_values(pv), thickness.data.astype(np.float32)[:, None])
+    # three snorm8 codes packed into one int (what the glTF accessor stores), kept by Blender's importer
     pv = api.GetPrimvar("sss:direction")
-    assert pv.GetElementSize() == 3 and len(pv.Get()) == 3 * n
-    np.testing.assert_array_equal(np.asarray(pv.Get()).reshape(n, 3), direction.data.astype(np.float32))
+    assert str(pv.GetTypeName()) == "int[]" and pv.GetElementSize() == 1 and len(pv.Get()) == n
+    assert pv.GetAttr().GetCustomData()["packedBits"] == 8
+    codes = np.round(direction.data * 127).astype(np.int64)
+    first = np.asarray(pv.Get()).astype(np.int64) % 256
+    np.testing.assert_array_equal(first, codes[:, 0] % 256)
+    np.testing.assert_array_equal(primvar_values(pv), dequantize(quantize(direction.data, "snorm8"), True))
     assert mesh.GetPrim().GetAttribute("sss:scaleMm").Get() == 10.0
 
     assert summary["vertices"] == n + 3 and summary["faces"] == len(prim_in.faces) + 1
     assert summary["blocks"]["primvars:sss:thickness"] == 4 * n
-    assert summary["blocks"]["primvars:sss:direction"] == 12 * n
-    assert summary["bytes_per_vertex"]["primvars:sss:direction"] == 12.0
-    assert summary["bytes_per_vertex"]["sssbake"] == pytest.approx(16 * n / (n + 3))
+    assert summary["blocks"]["primvars:sss:direction"] == 4 * n
+    assert summary["bytes_per_vertex"]["primvars:sss:direction"] == 4.0
+    assert summary["bytes_per_vertex"]["sssbake"] == pytest.approx(8 * n / (n + 3))
     assert summary["bytes"] == (tmp_path / "marble.usdc").stat().st_size
     assert (tmp_path / "marble.usdc").read_bytes()[:8] == b"PXR-USDC"
 
@@ -122,9 +130,11 @@ def test_stage_metadata_hierarchy_and_extras(tmp_path):
 
     extras = json.loads(root.GetAttribute("sss:extras").Get())
     assert extras["k"] == 1.5
-    lut = root.GetAttribute(extras["lut"]["attribute"])
-    np.testing.assert_array_equal(np.asarray(lut.Get()).reshape(extras["lut"]["shape"]), np.arange(6.0).reshape(3, 2))
-    assert str(root.GetAttribute(extras["ids"]["attribute"]).GetTypeName()) == "uint[]"
+    assert extras["lut"]["attribute"] == "sss:lut" and extras["lut"]["shape"] == [3, 2]
+    lut = root.GetAttribute("sss:lut")
+    assert str(lut.GetTypeName()) == "float2[]" and lut.GetCustomData()["dtype"] == "float32"
+    np.testing.assert_array_equal(np.asarray(lut.Get()), np.arange(6.0).reshape(3, 2))
+    assert str(root.GetAttribute(extras["ids"]["attribute"]).GetTypeName()) == "int[]"
 
     worlds = asset.scene.world_matrices()
     cache = UsdGeom.XformCache()
@@ -267,18 +277,24 @@ def test_mesh_extras_tables_and_integer_primvars(tmp_path):
     prim = stage.GetPrimAtPath("/m/root/sphere")
     extras = json.loads(prim.GetAttribute("sss:extras").Get())
     assert extras["prt"]["order"] == 2
-    table = prim.GetAttribute(extras["prt"]["codes"]["attribute"])
-    assert str(table.GetTypeName()) == "uchar[]"
+    assert extras["prt"]["codes"]["attribute"] == "sss:prt:codes"
+    table = prim.GetAttribute("sss:prt:codes")
+    assert str(table.GetTypeName()) == "int[]"  # compressed on disk, unlike uchar[]
     np.testing.assert_array_equal(np.asarray(table.Get()).reshape(extras["prt"]["codes"]["shape"]), codes)
+    tables, _ = technique_data(prim, "prt")
+    assert tables["codes"].dtype == np.uint8
+    np.testing.assert_array_equal(tables["codes"], codes)
+    # two uint16 in one int (4 bytes, as glTF's VEC2 uint16): lo + 65536 hi
     primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("sss:prt:ref")
-    assert str(primvar.GetTypeName()) == "int[]" and primvar.GetElementSize() == 2
-    np.testing.assert_array_equal(np.asarray(primvar.Get()).reshape(n, 2), index.data)
+    assert str(primvar.GetTypeName()) == "int[]" and primvar.GetElementSize() == 1
+    np.testing.assert_array_equal(np.asarray(primvar.Get()).view(np.uint32), index.data[:, 0] + 65536 * index.data[:, 1])
+    np.testing.assert_array_equal(primvar_values(primvar), index.data)
 
 
 def test_spectral_normal_primvar_and_tables(tmp_path):
     from test_gltf import spectral_parts
 
-    from sssbake.exporters.usd import technique_tables
+    from sssbake.exporters.usd import technique_data, technique_tables
 
     asset = icosphere_asset()
     normals, attrs, tables = spectral_parts(asset.scene.meshes[0].primitives[0])
@@ -288,12 +304,16 @@ def test_spectral_normal_primvar_and_tables(tmp_path):
     prim = stage.GetPrimAtPath("/s/root/sphere")
     primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("sss:normal")
     values = np.asarray(primvar.Get())
-    assert str(primvar.GetTypeName()) == "float[]" and primvar.GetElementSize() == 3
-    assert primvar.GetInterpolation() == UsdGeom.Tokens.vertex and values.shape == (3 * len(normals),)
-    np.testing.assert_array_equal(values.reshape(-1, 3), normals.astype(np.float32))
-    read = technique_tables(prim, "spectral")
+    assert str(primvar.GetTypeName()) == "normal3f[]" and primvar.GetElementSize() == 1
+    assert primvar.GetInterpolation() == UsdGeom.Tokens.vertex and values.shape == (len(normals), 3)
+    np.testing.assert_array_equal(values, normals.astype(np.float32))
+    # the JSON names primvars; technique_data maps them back to the glTF names the layout uses
+    assert technique_tables(prim, "spectral")["attributes"] == {"normal": "primvars:sss:normal",
+                                                                "vertex": "primvars:sss:spectral:vertex"}
+    read, per_vertex = technique_data(prim, "spectral")
     for name, value in tables.items():
         np.testing.assert_array_equal(read[name], value)
+    np.testing.assert_array_equal(per_vertex["_SSS_NORMAL"], normals.astype(np.float32))
 
 
 def test_screen_tables_are_attributes_of_the_material_prim(tmp_path):
@@ -306,13 +326,44 @@ def test_screen_tables_are_attributes_of_the_material_prim(tmp_path):
     stage = Usd.Stage.Open(str(tmp_path / "ball.usdc"))  # held: its prims die with it
     (material,) = [p for p in stage.Traverse() if p.IsA(UsdShade.Material) and p.GetAttribute("sss:extras")]
     expected = screen_samples(preset("marble"), options.technique_options("screen").samples_options())
-    for name, value in (("offsets", expected.offsets), ("weights", expected.weights), ("rdTable", expected.table.T)):
+    for name, value, type_name in (("offsets", expected.offsets, "float2[]"), ("weights", expected.weights, "float[]"),
+                                   ("rdTable", expected.table.T, "float3[]")):
         attribute = material.GetAttribute("sss:screen:" + name)
-        assert str(attribute.GetTypeName()) == "float[]"
+        assert str(attribute.GetTypeName()) == type_name
         assert list(attribute.GetCustomData()["shape"]) == list(value.shape)
-        np.testing.assert_array_equal(np.asarray(attribute.Get()).reshape(value.shape), value.astype(np.float32))
+        np.testing.assert_array_equal(np.asarray(attribute.Get()), value.astype(np.float32))
     tables = technique_tables(material, "screen")
     assert (tables["technique"], tables["samples"], tables["uniform"]) == ("screen", options.screen_samples, 0)
     np.testing.assert_array_equal(tables["weights"], expected.weights.astype(np.float32))
     assert tables["tableError"] == expected.table_error
     assert material.GetAttribute("sss:materialName").Get() == "marble"
+
+
+@pytest.mark.parametrize("encoding, k, usd_type, element_size, packed", [
+    ("uint8", 1, "uchar[]", 1, None), ("uint8", 4, "int[]", 1, 8), ("snorm8", 3, "int[]", 1, 8),
+    ("unorm8", 2, "int[]", 1, 8), ("uint16", 1, "int[]", 1, None), ("uint16", 2, "int[]", 1, 16),
+    ("snorm16", 2, "int[]", 1, 16), ("uint16", 3, "int[]", 3, None), ("unorm16", 3, "float3[]", 1, None),
+    ("snorm8", 6, "float[]", 6, None), ("float32", 2, "float2[]", 1, None), ("float32", 4, "float4[]", 1, None),
+    ("float32", 5, "float[]", 5, None),
+])
+def test_each_encoding_reads_back_as_gltf_decodes_it(tmp_path, encoding, k, usd_type, element_size, packed):
+    n = 42
+    rng = np.random.default_rng(k)
+    if encoding.startswith("uint"):
+        top = 255 if encoding == "uint8" else 65535
+        data = rng.integers(0, top + 1, size=(n, k)).astype(np.float64)
+        data[0] = top  # the sign bit of a packed int
+    else:
+        data = rng.uniform(-1.0 if encoding.startswith("s") else 0.0, 1.0, size=(n, k))
+        if encoding.startswith("snorm"):
+            data[0] = -1.0
+    attribute = VertexAttribute("x", data[:, 0] if k == 1 else data, "", encoding, "")
+    write_usdc(with_attributes(icosphere_asset(), attribute), tmp_path / "a.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "a.usdc"))
+    pv = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/a/root/sphere")).GetPrimvar("sss:x")
+    assert (str(pv.GetTypeName()), pv.GetElementSize()) == (usd_type, element_size)
+    assert pv.GetAttr().GetCustomData().get("packedBits") == packed
+    expected = dequantize(quantize(data, encoding), encoding[1:5] == "norm")
+    if usd_type.startswith("float"):  # float32 values: the decoded codes rounded once more
+        expected = expected.astype(np.float32)
+    np.testing.assert_array_equal(primvar_values(pv), expected)

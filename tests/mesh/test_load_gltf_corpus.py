@@ -98,7 +98,7 @@ def test_colour_space_png_warning_is_inherited_not_a_failure(corpus):
         "IMAGE_FEATURES_UNSUPPORTED", "Warning", "/images/0", True)
     assert v["input"]["warnings"] == 1
     assert _image(gltf, 0) == (corpus[1]["box_textured_colorspace.glb"].values["image"], "image/png")
-    assert report["screen"] and "screen" in gltf.materials[0].extras["sssbake"]  # baked with a technique too
+    assert report["screen"] and "screen" in gltf.materials[0].extensions["SSSBAKE_subsurface"]  # baked with a technique too
 
 
 def test_an_inherited_error_does_not_fail_the_asset(corpus):

@@ -41,16 +41,3 @@ def test_khr_volume_without_attenuation_is_not_a_material():
 def test_bad_rule_raises_material_error():
     with pytest.raises(MaterialError, match="unknown material preset"):
         assign_materials(_scene([SourceMaterial("A")], [0]), BakeOptions(material="granite"), 1.0)
-
-
-def test_fallback_matches_physics():
-    m = preset("marble")
-    fb = make_fallback(m, mm_per_unit=10.0, thickness_mm=np.array([10.0, 20.0, 30.0]), thickness_texture=None,
-                       thickness_max_units=3.0)
-    # Beer's law with σ_tr per file unit: -ln(c)/d = σ_tr · mm_per_unit.
-    np.testing.assert_allclose(-np.log(fb.attenuation_color) / fb.attenuation_distance, m.sigma_tr * 10.0, rtol=1e-12)
-    assert min(fb.attenuation_color) >= np.exp(-1) - 1e-12
-    np.testing.assert_allclose(fb.diffuse_transmission_factor, np.mean(np.exp(-m.sigma_tr * 20.0)))
-    assert fb.ior == 1.5 and fb.thickness_factor == 3.0
-    no_abs = make_fallback(preset("spectralon"), 1.0, np.array([1.0]), None, 1.0)
-    assert all(np.isfinite(no_abs.attenuation_color)) and np.isfinite(no_abs.attenuation_distance)

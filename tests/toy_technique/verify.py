@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-import pygltflib
 
-from sssbake.exporters import gltf, usd
+from sssbake.exporters import gltf_tables, usd
 from sssbake.pipeline.render.items import PLAIN_ALBEDO
 from sssbake.pipeline.techniques.technique import VerifyUnit
 
@@ -14,10 +13,9 @@ class ToyVerify:
     draw = None
 
     def read(self, path) -> dict:
-        document = pygltflib.GLTF2.load(str(path))
-        blob = document.binary_blob()
-        return {(i, j): np.asarray(tables["albedo"]) for i, mesh in enumerate(document.meshes)
-                if (tables := gltf.technique_tables(document, mesh, "toy", blob)) is not None
+        document = gltf_tables.load_sssbake_gltf(path, required=True)
+        return {(i, j): np.asarray(tables["albedo"]) for i, mesh in enumerate(document.gltf.meshes)
+                if (tables := gltf_tables.technique_tables(document, "meshes", i, "toy")) is not None
                 for j in range(len(mesh.primitives))}
 
     def read_usd(self, path) -> dict:

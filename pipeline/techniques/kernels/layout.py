@@ -1,9 +1,8 @@
 """How `KernelsData` is laid out in the exported files, and how it is read back.
 
 Per render vertex (glTF attribute / USD primvar): ``sss:kernels:vertex`` → ``_SSS_KERNELS_VERTEX``
-/ ``primvars:sss:kernels:vertex``, the welded surface vertex of the render vertex: uint16 scalar
-while the mesh has fewer than 65536 welded vertices, else VEC2 uint16 ``lo + 65536 · hi`` (glTF
-has no 32-bit integer vertex attributes).
+/ ``primvars:sss:kernels:vertex``, the welded surface vertex of the render vertex: VEC3 float32
+``(vertex, 0, 0)`` (`baked.welded_vertex_attribute`: what every importer keeps).
 
 Per mesh, under ``extras.sssbake.kernels`` (glTF: accessors; USD: table attributes on each Mesh
 prim of the mesh), see `kernels_tables`: one atlas per mesh, shared by its primitives. Kernels are
@@ -17,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sssbake.pipeline.mesh.baked import VertexAttribute, index_table, welded_vertex_attribute
+from sssbake.pipeline.mesh.baked import ATTRIBUTE_WIDTH, VertexAttribute, index_table, welded_vertex_attribute
 from sssbake.pipeline.techniques.kernels.data import KernelsData, KernelsDataError
 
 VERTEX_KEY = "sss:kernels:vertex"
@@ -121,10 +120,9 @@ def kernels_vertex_attributes(data: KernelsData, vertices: np.ndarray) -> tuple[
     tuple of VertexAttribute
         ``sss:kernels:vertex`` (`welded_vertex_attribute`).
     """
-    # One description for both widths: the file lists each attribute once, however many meshes use it.
     return (welded_vertex_attribute(VERTEX_KEY, vertices, data.surface_vertex_count,
-                                    "welded surface vertex of the render vertex (kernels tables): the value, or "
-                                    "lo + 65536 * hi with two components"),)
+                                    "welded surface vertex of the render vertex (kernels tables); components 1, 2 "
+                                    "are 0"),)
 
 
 def _plain_tables(data: KernelsData) -> dict[str, np.ndarray]:
@@ -199,7 +197,7 @@ def _stored_bytes(table: np.ndarray) -> int:
 
 
 def kernels_bytes(data: KernelsData, kernel_bits: int = 16) -> dict:
-    """Bytes of the per-mesh tables as the glTF binary stores them (USD widens int8/int16 to int[]).
+    """Bytes of the per-mesh tables as the glTF binary stores them (USD widens int16 and index tables to int[]).
 
     Returns
     -------
@@ -208,8 +206,8 @@ def kernels_bytes(data: KernelsData, kernel_bits: int = 16) -> dict:
         ``f``, ``border``, ``surface``), ``total`` (their sum), ``perVertex`` (total / welded surface
         vertices),
         ``perTexel`` (total / covered texels; 0 without any), and ``vertexIdsPerRenderVertex``: the
-        bytes each render vertex spends on ``_SSS_KERNELS_VERTEX`` (4: one or two uint16 in a
-        4-byte-aligned stride), not in ``total``.
+        bytes each render vertex spends on ``_SSS_KERNELS_VERTEX`` (12: VEC3 float32), not in
+        ``total``.
     """
     k2 = data.kernel_size**2
     s = len(data.texels)
@@ -219,7 +217,7 @@ def kernels_bytes(data: KernelsData, kernel_bits: int = 16) -> dict:
     out = {block: sum(sizes[name] for name in names) for block, names in BLOCKS.items()}
     total = sum(out.values())
     out.update(total=total, perVertex=total / data.surface_vertex_count, perTexel=total / s if s else 0.0,
-               vertexIdsPerRenderVertex=4)
+               vertexIdsPerRenderVertex=4 * ATTRIBUTE_WIDTH)
     return out
 
 
@@ -287,15 +285,17 @@ def vertex_ids_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> n
     tables : dict
         ``extras.sssbake.kernels`` (only its parameters are used).
     per_vertex : dict
-        Attribute name (``_SSS_KERNELS_VERTEX``) -> (p,), (p, 1) or (p, 2) stored values.
+        Attribute name (``_SSS_KERNELS_VERTEX``) -> (p, 3) stored values ``(vertex, 0, 0)``.
     """
-    stored = np.rint(np.asarray(per_vertex[tables["attributes"]["vertex"]], dtype=np.float64)).astype(np.int64)
+    stored = np.asarray(per_vertex[tables["attributes"]["vertex"]], dtype=np.float64)
     stored = stored.reshape(len(stored), -1)
-    ids = stored[:, 0] + (65536 * stored[:, 1] if stored.shape[1] == 2 else 0)
     n = int(tables["surfaceVertexCount"])
+    ids = stored[:, 0]
+    if stored.shape[1] != ATTRIBUTE_WIDTH or np.any(stored[:, 1:] != 0.0) or np.any(ids != np.rint(ids)):
+        raise KernelsDataError("kernels: vertex ids must be stored as (vertex, 0, 0) with integer vertices")
     if ids.size and (ids.min() < 0 or ids.max() >= n):
         raise KernelsDataError(f"kernels: vertex ids outside the {n} welded vertices")
-    return ids
+    return ids.astype(np.int64)
 
 
 def kernels_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> tuple[KernelsData, np.ndarray]:

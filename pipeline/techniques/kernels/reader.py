@@ -11,12 +11,11 @@ import os
 from pathlib import Path
 
 import numpy as np
-import pygltflib
 
-from sssbake.exporters.gltf import technique_primitives
+from sssbake.exporters.gltf_tables import load_sssbake_gltf, technique_primitives
 from sssbake.pipeline.core.errors import SssbakeError
 from sssbake.pipeline.techniques.kernels.data import KernelsData
-from sssbake.pipeline.techniques.kernels.layout import VERTEX_KEY, kernels_data_from_tables, vertex_ids_from_layout
+from sssbake.pipeline.techniques.kernels.layout import kernels_data_from_tables, vertex_ids_from_layout
 
 
 class KernelsReadError(SssbakeError, ValueError):
@@ -25,12 +24,16 @@ class KernelsReadError(SssbakeError, ValueError):
 
 def read_kernels_glb(path: str | os.PathLike) -> dict[tuple[int, int], tuple[KernelsData, np.ndarray]]:
     """``(mesh index, primitive index) -> (KernelsData, vertex_ids (p,) int64)`` for every primitive
-    of a mesh whose ``extras.sssbake`` has ``kernels``."""
-    gltf = pygltflib.GLTF2.load(str(path))
-    blob = gltf.binary_blob()
+    of a mesh whose ``SSSBAKE_subsurface`` object has ``kernels``.
+
+    Raises
+    ------
+    StaleDataError
+        The tables or attributes no longer match their references (`gltf_tables`).
+    """
     out = {}
-    for i, tables, primitives in technique_primitives(gltf, "kernels", lambda t: [t["attributes"]["vertex"]],
-                                                      KernelsReadError, path, blob):
+    for i, tables, primitives in technique_primitives(load_sssbake_gltf(path, required=True), "kernels",
+                                                      lambda t: [t["attributes"]["vertex"]]):
         data = kernels_data_from_tables(tables)  # one atlas per mesh: its primitives share it
         for j, per_vertex in enumerate(primitives):
             out[(i, j)] = data, vertex_ids_from_layout(tables, per_vertex)
@@ -41,23 +44,24 @@ def read_kernels_glb(path: str | os.PathLike) -> dict[tuple[int, int], tuple[Ker
 
 def read_kernels_usd(path: str | os.PathLike) -> dict[str, tuple[KernelsData, np.ndarray]]:
     """Mesh prim path -> (KernelsData, vertex_ids (p,) int64), for every UsdGeom.Mesh whose
-    ``sss:extras`` has ``kernels``."""
-    from pxr import Usd, UsdGeom
+    ``sss:extras`` has ``kernels``.
 
-    from sssbake.exporters.usd import technique_tables
+    Raises
+    ------
+    StaleDataError
+        A table or the vertex primvar is missing or no longer matches (`exporters.usd.technique_data`).
+    """
+    from pxr import Usd
+
+    from sssbake.exporters.usd import technique_data
 
     stage = Usd.Stage.Open(str(Path(path)))
     out = {}
     for prim in stage.Traverse():
-        resolved = technique_tables(prim, "kernels")
-        if resolved is None:
-            continue
-        primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(VERTEX_KEY)
-        if not primvar:
-            raise KernelsReadError(f"{path}: {prim.GetPath()} lacks primvars:{VERTEX_KEY}")
-        stored = np.asarray(primvar.Get()).reshape(-1, primvar.GetElementSize())
-        ids = vertex_ids_from_layout(resolved, {resolved["attributes"]["vertex"]: stored})
-        out[str(prim.GetPath())] = kernels_data_from_tables(resolved), ids
+        found = technique_data(prim, "kernels")
+        if found is not None:
+            tables, per_vertex = found
+            out[str(prim.GetPath())] = kernels_data_from_tables(tables), vertex_ids_from_layout(tables, per_vertex)
     if not out:
         raise KernelsReadError(f"{path}: no mesh holds kernels data (bake with --techniques kernels)")
     return out

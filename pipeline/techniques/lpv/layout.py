@@ -1,7 +1,7 @@
 """How the lpv technique's data (Børlum et al. 2011) is laid out in the exported files.
 
 Per mesh, under ``extras.sssbake.lpv`` (glTF: tables as accessors; USD: the Mesh prim's
-``sss:extras`` JSON with ``sss:tables:t<i>`` attributes), see `lpv_tables`: the material grid (one
+``sss:extras`` JSON with ``sss:lpv:<key>`` attributes), see `lpv_tables`: the material grid (one
 value per cell, x fastest, then y, then z, as a GL 3-D texture's texels), the grid's frame in the
 mesh's file units, the six propagation matrices and the rendering's scale per step count, and
 (since schema 1.8.0) what the grid was voxelised from, ``source``: the voxelisation's options and

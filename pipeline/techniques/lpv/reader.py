@@ -9,9 +9,8 @@ import os
 from pathlib import Path
 
 import numpy as np
-import pygltflib
 
-from sssbake.exporters.gltf import technique_tables
+from sssbake.exporters.gltf_tables import load_sssbake_gltf, technique_tables
 from sssbake.pipeline.core.errors import SssbakeError
 from sssbake.pipeline.techniques.lpv.data import LpvGrid
 from sssbake.pipeline.techniques.lpv.layout import LpvSource, lpv_grid_from_tables, lpv_source_from_tables
@@ -23,15 +22,20 @@ class LpvReadError(SssbakeError, ValueError):
 
 def read_lpv_glb(path: str | os.PathLike) -> dict[tuple[int, int], tuple[LpvGrid, np.ndarray, np.ndarray]]:
     """``(mesh index, primitive index) -> (LpvGrid, matrices (6, 4, 4), render scales (S, 3))``
-    for every primitive of a mesh whose ``extras.sssbake`` has ``lpv`` (one grid per mesh, in its
-    frame at its ``scaleMm``: its primitives share it)."""
-    gltf = pygltflib.GLTF2.load(str(path))
-    blob = gltf.binary_blob()
+    for every primitive of a mesh whose ``SSSBAKE_subsurface`` object has ``lpv`` (one grid per mesh,
+    in its frame at its ``scaleMm``: its primitives share it).
+
+    Raises
+    ------
+    StaleDataError
+        The tables no longer match their references (`gltf_tables`).
+    """
+    data = load_sssbake_gltf(path, required=True)
     out = {}
-    for i, mesh in enumerate(gltf.meshes):
-        tables = technique_tables(gltf, mesh, "lpv", blob)
+    for i, mesh in enumerate(data.gltf.meshes):
+        tables = technique_tables(data, "meshes", i, "lpv")
         if tables is not None:
-            grid = _grid(tables, float(mesh.extras["sssbake"]["scaleMm"]), f"{path}: mesh {i}")
+            grid = _grid(tables, float(data.extension(mesh)["scaleMm"]), f"{path}: mesh {i}")
             out.update({(i, j): grid for j in range(len(mesh.primitives))})
     if not out:
         raise LpvReadError(f"{path}: no mesh holds lpv data (bake with --techniques lpv)")
@@ -57,10 +61,10 @@ def read_lpv_sources_glb(path: str | os.PathLike) -> dict[tuple[int, int], LpvSo
     """``(mesh index, primitive index) -> LpvSource`` (`lpv_layout.lpv_source_from_tables`: the
     field and voxelisation the grid came from; None for files that do not record it, schema 1.7.x)
     for the same primitives as `read_lpv_glb`."""
-    gltf = pygltflib.GLTF2.load(str(path))
+    data = load_sssbake_gltf(path, required=True)
     out = {}
-    for i, mesh in enumerate(gltf.meshes):
-        tables = ((mesh.extras or {}).get("sssbake") or {}).get("lpv")  # the JSON alone: no table is read
+    for i, mesh in enumerate(data.gltf.meshes):
+        tables = (data.extension(mesh) or {}).get("lpv")  # the JSON alone: no table is read
         if tables is not None:
             source = _source(tables, f"{path}: mesh {i}")
             out.update({(i, j): source for j in range(len(mesh.primitives))})

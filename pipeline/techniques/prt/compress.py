@@ -103,10 +103,10 @@ class PrtCompressOptions:
         Share of the reference points (``refs+sh``) added where the fit is worst
         (`refine_reference_points`) after simplification placed the rest, in [0, 1).
     weight_bits : int
-        8 or 16 bits per weight code. 8 puts a vertex's reference triangle and weights in one
-        4-byte attribute instead of two (`prt_layout`); it needs at most 65536 reference
-        triangles, and 16 is used above that. The 4 bytes saved buy more reference points than
-        8-bit codes cost in error (benchmarks/README.md#prt-compression).
+        8 or 16 bits per weight code; 16 is used above 65536 reference triangles. The choice
+        was made when 8-bit weights shared a 4-byte attribute with the triangle; the file now
+        stores both as float32 at the same bytes (`prt_layout`), so 8 only rounds coarser
+        (benchmarks/README.md#prt-compression, #vertex-attribute-encodings).
     """
 
     mode: str = "refs+sh"

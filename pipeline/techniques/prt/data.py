@@ -72,8 +72,8 @@ class PrtData:
     weight_scale : float
         Range of the weights: 1 for barycentric weights, larger for least-squares weights.
     weight_bits : int
-        8 or 16. With 8 the exporters store a vertex's triangle and both codes in one 4-byte
-        attribute, which needs ``len(ref_triangles) <= 65536`` (see `prt_layout`).
+        8 or 16: the codes' range (M = 127 or 32767). The exporters store both as float32 with
+        the vertex's triangle (`prt_layout`).
     dq_codes : (n, 3, C) int8
         Per surface vertex and channel, SH coefficients of Δq as signed normalised bytes; C = sh_order².
     dq_scale : (3, C) float32

@@ -135,9 +135,8 @@ def reference_tables(ref_codes: np.ndarray, lut: np.ndarray, ref_scale: np.ndarr
 def bytes_per_vertex(prt: PrtData) -> dict[str, float]:
     """Every byte of the prt data per surface vertex as the glTF export stores it, tables amortised.
 
-    Per vertex: ``_SSS_PRT_REF`` 4 B (4 × uint8 with 8-bit weights, else 2 × uint16),
-    ``_SSS_PRT_W`` 4 B (2 × int16; none with 8-bit weights), ``_SSS_PRT_DQ*`` 3·C int8 codes padded
-    to whole VEC4s. Tables (`prt_layout.prt_tables`; index tables as uint16 where they fit, else
+    Per vertex (`prt_layout`, VEC3 float32 attributes): ``_SSS_PRT_REF`` 12 B, ``_SSS_PRT_DQ*``
+    12 B per SH coefficient (C of them). Tables (`prt_layout.prt_tables`; index tables as uint16 where they fit, else
     uint32; floats as float32), divided by n: reference codes R·K·C_t, reference colours (shared
     tables), reference triangles, directions, hull triangles, inverses, lookup, neighbours, LUT
     and Δq scales. Render vertices duplicated at seams repeat the per-vertex part; buffer-view
@@ -149,8 +148,7 @@ def bytes_per_vertex(prt: PrtData) -> dict[str, float]:
         Block name -> bytes per vertex, plus ``per_vertex``, ``tables`` and ``total``.
     """
     n = max(prt.vertex_count, 1)
-    per_vertex = {"_SSS_PRT_REF": 4.0, "_SSS_PRT_W": 0.0 if prt.weight_bits == 8 else 4.0,
-                  "_SSS_PRT_DQ": 4.0 * -(-3 * prt.sh_order ** 2 // 4)}
+    per_vertex = {"_SSS_PRT_REF": 12.0, "_SSS_PRT_DQ": 12.0 * prt.sh_order ** 2}
     tables = {
         "refCodes": prt.ref_codes.size,
         "refScale": 4 * prt.ref_scale.size,

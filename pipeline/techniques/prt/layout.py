@@ -1,15 +1,13 @@
 """How `PrtData` is laid out in the exported files, and how it is read back.
 
-Per render vertex (glTF attribute / USD primvar, from `VertexAttribute` keys):
+Per render vertex (glTF attribute / USD primvar, from `VertexAttribute` keys), VEC3 float32 like
+every sssbake attribute (`baked.ATTRIBUTE_WIDTH`: what Blender, Bevy and Godot keep exactly):
 
-- 8-bit weights (``weightBits`` 8): ``sss:prt:ref`` → ``_SSS_PRT_REF`` / ``primvars:sss:prt:ref``:
-  VEC4 uint8, the vertex's reference triangle ``x + 256 · y`` and the codes of w_0, w_1 plus 128
-  (``w = weightScale · code / 127``), one 4-byte attribute;
-- 16-bit weights: ``sss:prt:ref`` → ``_SSS_PRT_REF``: VEC2 uint16, the reference triangle
-  ``lo + 65536 · hi``, and ``sss:prt:w`` → ``_SSS_PRT_W``: VEC2 snorm16, w_0 and w_1 divided by
-  ``weightScale``;
-- ``sss:prt:dq<i>`` → ``_SSS_PRT_DQ<i>``: VEC4 snorm8; the (3, C) Δq codes of the vertex flattened
-  channel-major (index c·C + i) and cut into groups of four, the last one zero-padded.
+- ``sss:prt:ref`` → ``_SSS_PRT_REF`` / ``primvars:sss:prt:ref``: the vertex's reference triangle
+  and the codes of w_0, w_1 (``w = weightScale · code / M``, M = 127 with ``weightBits`` 8, 32767
+  with 16; w_2 = 1 - w_0 - w_1), all integers;
+- ``sss:prt:dq<i>`` → ``_SSS_PRT_DQ<i>``, i < C = shOrder²: the Δq codes of SH coefficient i in
+  R, G, B (integers in [-127, 127]; ``Δq_c,i = code · dqScale[i][c] / 127``).
 
 Per mesh, under ``extras.sssbake.prt`` (glTF: accessors; USD: table attributes on the Mesh prim),
 see `prt_tables`. Reading back (`prt_from_layout`) gives exactly the in-memory codes and tables.
@@ -19,15 +17,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from sssbake.pipeline.mesh.baked import VertexAttribute, index_table
+from sssbake.pipeline.mesh.baked import ATTRIBUTE_WIDTH, FLOAT_INTEGERS, VertexAttribute, index_table
 from sssbake.pipeline.techniques.prt.data import PrtData
 
-REF_KEY, WEIGHT_KEY, DQ_KEY = "sss:prt:ref", "sss:prt:w", "sss:prt:dq"
+REF_KEY, DQ_KEY = "sss:prt:ref", "sss:prt:dq"
+#: The weight codes' M (``w = weightScale · code / M``) per ``weightBits``.
+WEIGHT_MAX = {8: 127, 16: 32767}
 
 
 def dq_attribute_count(sh_order: int) -> int:
-    """How many VEC4 snorm8 attributes hold 3·sh_order² Δq codes."""
-    return -(-3 * sh_order * sh_order // 4)
+    """How many attributes hold the 3·sh_order² Δq codes: one RGB triple per SH coefficient."""
+    return sh_order * sh_order
 
 
 def prt_vertex_attributes(prt: PrtData, vertices: np.ndarray) -> tuple[VertexAttribute, ...]:
@@ -44,31 +44,17 @@ def prt_vertex_attributes(prt: PrtData, vertices: np.ndarray) -> tuple[VertexAtt
     -------
     tuple of VertexAttribute
     """
-    tri = prt.vertex_triangle[vertices].astype(np.int64)
-    codes = prt.weight_codes[vertices].astype(np.float64)
-    if prt.weight_bits == 8:
-        if len(tri) and tri.max() >= 65536:
-            raise ValueError("prt layout: 8-bit weights address at most 65536 reference triangles; "
-                             "compress with weight_bits=16")
-        packed = np.column_stack([tri % 256, tri // 256, codes + 128.0])
-        out = [VertexAttribute(REF_KEY, packed, "", "uint8", "reference triangle x + 256 y; codes of the "
-                               "weights w0, w1 plus 128 (w = weightScale * code / 127, w2 = 1 - w0 - w1)")]
-    else:
-        ref = np.column_stack([tri % 65536, tri // 65536]).astype(np.float64)
-        out = [
-            VertexAttribute(REF_KEY, ref, "", "uint16", "reference triangle of the vertex: lo + 65536 * hi"),
-            VertexAttribute(WEIGHT_KEY, codes / 32767.0, "", "snorm16", "weights w0, w1 of the reference "
-                            "points divided by weightScale; w2 = 1 - w0 - w1"),
-        ]
-    c = prt.dq_codes.shape[2]
-    if c:
-        flat = prt.dq_codes[vertices].reshape(len(vertices), -1).astype(np.float64) / 127.0
-        groups = dq_attribute_count(prt.sh_order)
-        padded = np.zeros((len(vertices), 4 * groups))
-        padded[:, : flat.shape[1]] = flat
-        for g in range(groups):
-            out.append(VertexAttribute(f"{DQ_KEY}{g}", padded[:, 4 * g: 4 * g + 4], "", "snorm8",
-                                       f"Δq SH codes {4 * g}..{4 * g + 3} (channel-major c*C+i) / 127"))
+    tri = prt.vertex_triangle[vertices].astype(np.float64)
+    if len(tri) and tri.max() >= FLOAT_INTEGERS:
+        raise ValueError(f"prt layout: float32 attributes address {FLOAT_INTEGERS} reference triangles at most")
+    ref = np.column_stack([tri, prt.weight_codes[vertices].astype(np.float64)])
+    m = WEIGHT_MAX[prt.weight_bits]
+    out = [VertexAttribute(REF_KEY, ref, "", "float32", f"reference triangle of the vertex; codes of the weights "
+                           f"w0, w1 (w = weightScale * code / {m}, w2 = 1 - w0 - w1)")]
+    dq = prt.dq_codes[vertices].astype(np.float64)  # (p, 3, C)
+    for i in range(prt.dq_codes.shape[2]):
+        out.append(VertexAttribute(f"{DQ_KEY}{i}", dq[:, :, i], "", "float32",
+                                   f"Δq codes of SH coefficient {i} in R, G, B (Δq = code * dqScale / 127)"))
     return tuple(out)
 
 
@@ -99,8 +85,8 @@ def prt_tables(prt: PrtData) -> dict:
         "directionLookup": index_table(prt.direction_lookup).reshape(-1),
         "directionNeighbours": index_table(prt.direction_neighbours),
         "lut": np.ascontiguousarray(prt.lut.T.astype(np.float32)),
-        "attributes": {"ref": "_SSS_PRT_REF", **({} if prt.weight_bits == 8 else {"weights": "_SSS_PRT_W"}),
-                       "dq": [f"_SSS_PRT_DQ{g}" for g in range(dq_attribute_count(prt.sh_order))]},
+        "attributes": {"ref": "_SSS_PRT_REF",
+                       "dq": [f"_SSS_PRT_DQ{i}" for i in range(dq_attribute_count(prt.sh_order))]},
         "units": "q: radiance per unit irradiance (1/sr)",
     }
     if len(prt.ref_codes):
@@ -117,6 +103,15 @@ def prt_tables(prt: PrtData) -> dict:
     return out
 
 
+def _codes(values: np.ndarray, name: str) -> np.ndarray:
+    """(n, 3) int64 of a stored (n, 3) attribute that must hold integers (float32 codes and ids)."""
+    values = np.asarray(values, dtype=np.float64)
+    values = values.reshape(len(values), -1)
+    if values.shape[1] != ATTRIBUTE_WIDTH or np.any(values != np.rint(values)):
+        raise ValueError(f"prt: {name} must hold {ATTRIBUTE_WIDTH} integers per vertex")
+    return values.astype(np.int64)
+
+
 def prt_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> PrtData:
     """Rebuild `PrtData` over render vertices from what a file holds.
 
@@ -125,8 +120,7 @@ def prt_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> PrtData:
     tables : dict
         ``extras.sssbake.prt`` with every table already read into a numpy array.
     per_vertex : dict
-        Attribute name (``_SSS_PRT_REF``, ...) -> (n, k) stored values as floats or integers
-        (snorm values as stored codes / MAX, as glTF and USD both give them).
+        Attribute name (``_SSS_PRT_REF``, ``_SSS_PRT_DQ<i>``) -> (n, 3) stored values.
 
     Returns
     -------
@@ -137,19 +131,18 @@ def prt_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> PrtData:
     order = int(tables["shOrder"])
     lookup = int(tables["lookupSize"])
     bits = int(tables["weightBits"])
-    ref = np.rint(np.asarray(per_vertex["_SSS_PRT_REF"], dtype=np.float64)).astype(np.int64)
+    ref = _codes(per_vertex["_SSS_PRT_REF"], "_SSS_PRT_REF")
     n = len(ref)
-    if bits == 8:
-        triangle = ref[:, 0] + 256 * ref[:, 1]
-        weights = (ref[:, 2:4] - 128).astype(np.int16)
-    else:
-        triangle = ref[:, 0] + 65536 * ref[:, 1]
-        weights = np.rint(np.asarray(per_vertex["_SSS_PRT_W"], dtype=np.float64) * 32767.0).astype(np.int16)
+    triangle = ref[:, 0]
+    if np.any(np.abs(ref[:, 1:]) > WEIGHT_MAX[bits]):
+        raise ValueError(f"prt: weight codes beyond ±{WEIGHT_MAX[bits]} in _SSS_PRT_REF")
+    weights = ref[:, 1:].astype(np.int16)
     c = order * order
     if c:
-        flat = np.concatenate([np.asarray(per_vertex[name], dtype=np.float64).reshape(n, 4)
-                               for name in tables["attributes"]["dq"]], axis=1)
-        dq = np.rint(flat[:, : 3 * c] * 127.0).astype(np.int8).reshape(n, 3, c)
+        dq = np.stack([_codes(per_vertex[name], name) for name in tables["attributes"]["dq"]], axis=2)
+        if dq.shape != (n, 3, c) or np.any(np.abs(dq) > 127):
+            raise ValueError(f"prt: {c} Δq attributes of codes in [-127, 127] expected")
+        dq = dq.astype(np.int8)
         dq_scale = np.asarray(tables["dqScale"], dtype=np.float32).reshape(c, 3).T
     else:
         dq = np.zeros((n, 3, 0), dtype=np.int8)

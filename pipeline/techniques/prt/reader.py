@@ -8,15 +8,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import numpy as np
-import pygltflib
-
-from sssbake.exporters.gltf import technique_primitives
+from sssbake.exporters.gltf_tables import load_sssbake_gltf, technique_primitives
 from sssbake.pipeline.core.errors import SssbakeError
 from sssbake.pipeline.techniques.prt.data import PrtData
 from sssbake.pipeline.techniques.prt.layout import prt_from_layout
-
-PRIMVAR_PREFIX = "primvars:sss:prt:"
 
 
 class PrtReadError(SssbakeError, ValueError):
@@ -25,11 +20,16 @@ class PrtReadError(SssbakeError, ValueError):
 
 def read_prt_glb(path: str | os.PathLike) -> dict[tuple[int, int], PrtData]:
     """``(mesh index, primitive index) -> PrtData`` over the primitive's vertices, for every
-    primitive of a mesh whose ``extras.sssbake`` has ``prt``."""
-    gltf = pygltflib.GLTF2.load(str(path))
-    blob = gltf.binary_blob()
+    primitive of a mesh whose ``SSSBAKE_subsurface`` object has ``prt``.
+
+    Raises
+    ------
+    StaleDataError
+        The tables or attributes no longer match their references (`gltf_tables`).
+    """
+    data = load_sssbake_gltf(path, required=True)
     out = {(i, j): prt_from_layout(tables, per_vertex)
-           for i, tables, primitives in technique_primitives(gltf, "prt", _attribute_names, PrtReadError, path, blob)
+           for i, tables, primitives in technique_primitives(data, "prt", _attribute_names)
            for j, per_vertex in enumerate(primitives)}
     if not out:
         raise PrtReadError(f"{path}: no mesh holds prt data (bake with --techniques prt)")
@@ -37,26 +37,23 @@ def read_prt_glb(path: str | os.PathLike) -> dict[tuple[int, int], PrtData]:
 
 
 def read_prt_usd(path: str | os.PathLike) -> dict[str, PrtData]:
-    """Mesh prim path -> PrtData, for every UsdGeom.Mesh whose ``sss:extras`` has ``prt``."""
-    from pxr import Usd, UsdGeom
+    """Mesh prim path -> PrtData, for every UsdGeom.Mesh whose ``sss:extras`` has ``prt``.
 
-    from sssbake.exporters.usd import technique_tables
+    Raises
+    ------
+    StaleDataError
+        A table or a primvar it names is missing or no longer matches (`exporters.usd.technique_data`).
+    """
+    from pxr import Usd
+
+    from sssbake.exporters.usd import technique_data
 
     stage = Usd.Stage.Open(str(Path(path)))
     out = {}
     for prim in stage.Traverse():
-        resolved = technique_tables(prim, "prt")
-        if resolved is None:
-            continue
-        api = UsdGeom.PrimvarsAPI(prim)
-        per_vertex = {}
-        for name in _attribute_names(resolved):
-            key = name.removeprefix("_SSS_PRT_").lower()
-            primvar = api.GetPrimvar("sss:prt:" + key)
-            if not primvar:
-                raise PrtReadError(f"{path}: {prim.GetPath()} lacks {PRIMVAR_PREFIX}{key}")
-            per_vertex[name] = np.asarray(primvar.Get()).reshape(-1, primvar.GetElementSize())
-        out[str(prim.GetPath())] = prt_from_layout(resolved, per_vertex)
+        found = technique_data(prim, "prt")
+        if found is not None:
+            out[str(prim.GetPath())] = prt_from_layout(*found)
     if not out:
         raise PrtReadError(f"{path}: no mesh holds prt data (bake with --techniques prt)")
     return out

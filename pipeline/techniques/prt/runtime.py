@@ -35,20 +35,15 @@ class PrtDraw(DrawKind):
 
 
 def per_vertex_arrays(prt: PrtData) -> list[tuple[np.ndarray, str, str]]:
-    """The per-vertex attributes as stored (`prt_layout`), as (array, moderngl format, shader
-    input): 8-bit weights ``in_prt_ref`` (n, 4) uint8; else ``in_prt_ref`` (n, 2) uint16 and
-    ``in_prt_w`` (n, 2) int16."""
-    tri = prt.vertex_triangle.astype(np.int64)
-    if prt.weight_bits == 8:
-        packed = np.column_stack([tri % 256, tri // 256, prt.weight_codes.astype(np.int64) + 128]).astype(np.uint8)
-        return [(packed, "4u1", "in_prt_ref")]
-    ref = np.column_stack([tri % 65536, tri // 65536]).astype(np.uint16)
-    return [(ref, "2u2", "in_prt_ref"), (prt.weight_codes.astype(np.int16), "2i2", "in_prt_w")]
+    """The per-vertex attribute as stored (`prt_layout`), as (array, moderngl format, shader
+    input): ``in_prt_ref`` (n, 3) float32, the reference triangle and the two weight codes."""
+    ref = np.column_stack([prt.vertex_triangle, prt.weight_codes]).astype(np.float32)
+    return [(ref, "3f4", "in_prt_ref")]
 
 
 def shader_defines(prt: PrtData) -> str:
     """The ``#define`` lines ``prt_decode.glsl`` needs for `prt`: its SH and detail orders (a
-    variant per order, see the shader) and PRT_COMPACT for 8-bit weights."""
+    variant per order, see the shader) and PRT_COMPACT for 8-bit weight codes."""
     return (f"#define PRT_SH_ORDER {prt.sh_order}\n#define PRT_DETAIL_ORDER {prt.detail_order}\n"
             + ("#define PRT_COMPACT\n" if prt.weight_bits == 8 else ""))
 

@@ -13,7 +13,7 @@ from sssbake.pipeline.techniques.technique import MESH, Technique
 class Prt(PrtStage, PrtVerify, PrtPilot, PrtTradeoff, Technique):
     name = "prt"
     scope = MESH
-    stage_version = 3
+    stage_version = 4  # 4: float32 VEC3 attributes (its tables name no _SSS_PRT_W)
     needs_atlas = False
     options_type = PrtOptions
     draw_unit = "primitive"

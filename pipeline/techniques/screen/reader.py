@@ -8,9 +8,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import pygltflib
-
-from sssbake.exporters.gltf import technique_tables
+from sssbake.exporters.gltf_tables import load_sssbake_gltf, technique_tables
 from sssbake.pipeline.core.errors import SssbakeError
 from sssbake.pipeline.techniques.screen.data import ScreenSamples
 from sssbake.pipeline.techniques.screen.layout import screen_samples_from_tables
@@ -22,12 +20,18 @@ class ScreenReadError(SssbakeError, ValueError):
 
 def read_screen_glb(path: str | os.PathLike) -> dict[tuple[int, int], ScreenSamples]:
     """``(mesh index, primitive index) -> ScreenSamples`` for every primitive whose material's
-    ``extras.sssbake`` has ``screen`` (primitives of one material share one)."""
-    gltf = pygltflib.GLTF2.load(str(path))
-    blob = gltf.binary_blob()
+    ``SSSBAKE_subsurface`` object has ``screen`` (primitives of one material share one).
+
+    Raises
+    ------
+    StaleDataError
+        The tables no longer match their references (`gltf_tables`).
+    """
+    data = load_sssbake_gltf(path, required=True)
+    gltf = data.gltf
     per_material = {}
-    for m, material in enumerate(gltf.materials):
-        tables = technique_tables(gltf, material, "screen", blob)
+    for m in range(len(gltf.materials)):
+        tables = technique_tables(data, "materials", m, "screen")
         if tables is not None:
             per_material[m] = _samples(tables, f"{path}: material {m}")
     out = {(i, j): per_material[prim.material] for i, mesh in enumerate(gltf.meshes)

@@ -1,10 +1,11 @@
 """How the spectral technique's normals (Patro 2007) are laid out in the exported files.
 
 Per render vertex (glTF attribute / USD primvar): ``sss:normal`` → ``_SSS_NORMAL`` /
-``primvars:sss:normal``, the spectral subsurface normal, VEC3 snorm16; with the basis exported
-also ``sss:spectral:vertex`` → ``_SSS_SPECTRAL_VERTEX``, the welded surface vertex of the render
-vertex (what the tables' rows are), laid out as ``_SSS_KERNELS_VERTEX`` is
-(`kernels_layout.welded_vertex_attribute`).
+``primvars:sss:normal``, the spectral subsurface normal, VEC3 float32 (snorm16 would be 8 bytes
+instead of 12, but Blender drops it and Bevy has no 3 x 16-bit vertex format); with the basis
+exported also ``sss:spectral:vertex`` → ``_SSS_SPECTRAL_VERTEX``, the welded surface vertex of the
+render vertex (what the tables' rows are), laid out as ``_SSS_KERNELS_VERTEX`` is
+(`baked.welded_vertex_attribute`).
 
 Per mesh, with the basis exported, under ``extras.sssbake.spectral`` (glTF: accessors; USD: table
 attributes on each Mesh prim of the mesh), see `spectral_tables`: the spectrum of the normal field,
@@ -31,9 +32,8 @@ VERTEX_ATTRIBUTE = VertexAttribute(VERTEX_KEY, np.zeros(0)).gltf_name
 #: technique's attributes index tables the variant does not carry).
 VARIANT_KEYS = ("thickness", NORMAL_KEY)
 
-#: Bytes per render vertex of ``_SSS_NORMAL`` (3 int16 in a 4-byte-aligned stride) and of
-#: ``_SSS_SPECTRAL_VERTEX`` (one or two uint16, likewise).
-NORMAL_BYTES, VERTEX_BYTES = 8, 4
+#: Bytes per render vertex of ``_SSS_NORMAL`` and of ``_SSS_SPECTRAL_VERTEX`` (VEC3 float32 each).
+NORMAL_BYTES, VERTEX_BYTES = 12, 12
 
 
 def spectral_vertex_attributes(normals: np.ndarray, vertices: np.ndarray,
@@ -52,15 +52,14 @@ def spectral_vertex_attributes(normals: np.ndarray, vertices: np.ndarray,
     Returns
     -------
     tuple of VertexAttribute
-        ``sss:normal`` (p, 3) snorm16, then ``sss:spectral:vertex``.
+        ``sss:normal`` (p, 3) float32, then ``sss:spectral:vertex``.
     """
     vertices = np.asarray(vertices, dtype=np.int64)
     # first: it refuses vertices outside the surface with a clear message
     ids = (welded_vertex_attribute(VERTEX_KEY, vertices, len(normals),
-                                   "welded surface vertex of the render vertex (spectral tables): the value, "
-                                   "or lo + 65536 * hi with two components"),) if with_vertex else ()
-    # A normalised vector's component can overshoot 1 by an ulp; snorm16 refuses anything beyond.
-    return (VertexAttribute(NORMAL_KEY, np.clip(normals[vertices], -1.0, 1.0), "", "snorm16",
+                                   "welded surface vertex of the render vertex (spectral tables); components "
+                                   "1, 2 are 0"),) if with_vertex else ()
+    return (VertexAttribute(NORMAL_KEY, normals[vertices], "", "float32",
                             "spectral subsurface normal (Patro 2007)"),) + ids
 
 

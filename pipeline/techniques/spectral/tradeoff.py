@@ -40,6 +40,7 @@ from sssbake.pipeline.render.sweep import (
     tradeoff_result,
     worst_rmse,
 )
+from sssbake.pipeline.techniques.spectral.layout import NORMAL_BYTES
 from sssbake.pipeline.techniques.spectral.precompute import (
     SPECTRAL_DEFAULTS,
     SpectralPrecomputeOptions,
@@ -49,9 +50,6 @@ from sssbake.pipeline.techniques.spectral.precompute import (
 EIGENPAIRS = (50, 100, 200, 300, 500)
 WIDTH_FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
 ALPHAS = (0.1, 0.5, 1.0, 2.0)
-#: Bytes per vertex of the exported normals: ``_SSS_NORMAL`` is VEC3 snorm16 (6 bytes), padded
-#: to the 4-byte element alignment glTF requires of vertex attributes.
-NORMAL_BYTES = 8.0
 #: The swept knobs, in sweep order, and the row key each sets.
 SWEEPS = (("eigenpairs", "eigenpairs"), ("width", "width_factor"), ("naive_alpha", "alpha"))
 

@@ -12,7 +12,7 @@ import pytest
 from fixtures import random_kernels
 from test_gltf import icosphere_asset
 
-from sssbake.exporters.gltf import UNSIGNED_SHORT, write_glb
+from sssbake.exporters.gltf import FLOAT, write_glb
 from sssbake.exporters.gltf_validator import ValidatorUnavailable, find_validator, validate_many
 from sssbake.exporters.inspect_gltf import inspect_glb
 from sssbake.exporters.inspect_usd import inspect_usdc
@@ -114,10 +114,11 @@ def test_glb_and_usd_round_trip(tmp_path, case, bits):
 
     gltf = pygltflib.GLTF2.load(tmp_path / "a.glb")
     vertex = gltf.accessors[getattr(gltf.meshes[0].primitives[0].attributes, VERTEX_ATTRIBUTE)]
-    assert (vertex.type, vertex.componentType) == ("VEC2" if case == "wide" else "SCALAR", UNSIGNED_SHORT)
-    codes = gltf.accessors[gltf.meshes[0].extras["sssbake"]["kernels"]["kernelCodes"]["accessor"]]
+    # VEC3 float32 (id, 0, 0) at any vertex count: what Blender, Bevy and Godot keep
+    assert (vertex.type, vertex.componentType, vertex.normalized) == ("VEC3", FLOAT, False)
+    codes = gltf.accessors[gltf.meshes[0].extensions["SSSBAKE_subsurface"]["kernels"]["kernelCodes"]["accessor"]]
     assert (codes.type, codes.componentType) == ("VEC3", 5120 if bits == 8 else 5122)
-    assert ("fValues" in gltf.meshes[0].extras["sssbake"]["kernels"]) == (case != "empty")
+    assert ("fValues" in gltf.meshes[0].extensions["SSSBAKE_subsurface"]["kernels"]) == (case != "empty")
 
     usd = read_kernels_usd(tmp_path / "a.usdc")
     assert set(usd) == set(USD_PRIMS)
@@ -125,8 +126,7 @@ def test_glb_and_usd_round_trip(tmp_path, case, bits):
         assert_read_back(usd[prim][0], data, bits)
         np.testing.assert_array_equal(usd[prim][1], ids[j])
         primvar = inspect_usdc(tmp_path / "a.usdc")["meshes"][j]["primvars"]["primvars:sss:kernels:vertex"]
-        width = 2 if case == "wide" else 1
-        assert primvar["elementSize"] == width and primvar["count"] == width * len(ids[j])
+        assert primvar["elementSize"] == 1 and primvar["count"] == len(ids[j])  # one (id, 0, 0) per vertex
 
 
 def test_files_pass_the_validators(tmp_path):
@@ -152,7 +152,7 @@ def test_byte_counts_are_what_the_files_spend(tmp_path, case, bits):
     asset, ids = kernels_asset(data, bits)
     write_glb(asset, tmp_path / "a.glb")
     gltf = pygltflib.GLTF2.load(tmp_path / "a.glb")
-    refs = gltf.meshes[0].extras["sssbake"]["kernels"]
+    refs = gltf.meshes[0].extensions["SSSBAKE_subsurface"]["kernels"]
     written = {block: sum(gltf.bufferViews[gltf.accessors[refs[name]["accessor"]].bufferView].byteLength
                           for name in names if name in refs) for block, names in BLOCKS.items()}
     counted = kernels_bytes(data, bits)
@@ -168,14 +168,14 @@ def test_byte_counts_are_what_the_files_spend(tmp_path, case, bits):
     shown = info["techniques"]["kernels"]
     assert shown["bytes"] == counted["total"]
     assert shown["tables"]["kernelCodes"]["componentType"] == ("BYTE" if bits == 8 else "SHORT")
-    assert info["primitives"][0]["attributes"][VERTEX_ATTRIBUTE]["bytesPerVertex"] == 4.0
+    assert info["primitives"][0]["attributes"][VERTEX_ATTRIBUTE]["bytesPerVertex"] == 12.0
 
     write_usdc(asset, tmp_path / "a.usdc")
     mesh = inspect_usdc(tmp_path / "a.usdc")["meshes"][0]
     assert mesh["extras"]["kernels"]["texelCount"] == len(data.texels)
     tables = mesh["techniques"]["kernels"]["tables"]
     assert set(tables) == {name for name in refs if isinstance(refs[name], dict) and "accessor" in refs[name]}
-    # USD widens int8/int16 codes to int[], and the glTF 16-bit indices to uint[]
+    # USD keeps integer tables as int[] (compressed in the file; it has no 16-bit integers)
     assert tables["kernelCodes"]["bytes"] == 4 * tables["kernelCodes"]["count"] == 4 * data.kernels.size
 
 
@@ -232,9 +232,9 @@ def test_kernels_extras_match_the_documented_schema(tmp_path):
         asset, _ = kernels_asset(make(case), bits)
         write_glb(asset, tmp_path / "a.glb")
         gltf = pygltflib.GLTF2.load(tmp_path / "a.glb")
-        mesh = gltf.meshes[0].extras["sssbake"]
+        mesh = gltf.meshes[0].extensions["SSSBAKE_subsurface"]
         mesh_schema.validate(mesh)
-        jsonschema.Draft202012Validator(schema).validate(gltf.extras["sssbake"])
+        jsonschema.Draft202012Validator(schema).validate(gltf.extensions["SSSBAKE_subsurface"])
     for bad in ({"kernelBits": 12}, {"kernelSize": 1}, {"technique": "prt"}):
         with pytest.raises(jsonschema.ValidationError):
             mesh_schema.validate({**mesh, "kernels": {**mesh["kernels"], **bad}})

@@ -44,7 +44,7 @@ def test_glb_and_usd_hold_the_same_grid(baked):
 
 def test_the_block_matches_the_documented_schema(baked):
     schema = json.loads(resources.files("sssbake.exporters").joinpath("schema/sssbake.schema.json").read_text())
-    mesh = pygltflib.GLTF2.load(str(baked / "ball.glb")).meshes[0].extras["sssbake"]
+    mesh = pygltflib.GLTF2.load(str(baked / "ball.glb")).meshes[0].extensions["SSSBAKE_subsurface"]
     jsonschema.Draft202012Validator({"$defs": schema["$defs"], "$ref": "#/$defs/mesh"}).validate(mesh)
     assert mesh["lpv"]["technique"] == "lpv"
     broken = {**mesh, "lpv": {**mesh["lpv"], "field": "wood"}}

@@ -198,8 +198,8 @@ def test_bytes_per_vertex_matches_a_hand_count(torus):
     n, k, r, fr = len(v), 48, len(prt.ref_codes), len(prt.ref_triangles)
     t = 2 * k - 4
     b = bytes_per_vertex(prt)
-    # 8-bit weights share _SSS_PRT_REF with the triangle; 27 codes -> 7 VEC4 snorm8
-    assert prt.weight_bits == 8 and (b["_SSS_PRT_REF"], b["_SSS_PRT_W"], b["_SSS_PRT_DQ"]) == (4, 0, 28)
+    # VEC3 float32: the triangle and both weight codes; 27 Δq codes -> 9 RGB triples
+    assert prt.weight_bits == 8 and (b["_SSS_PRT_REF"], b["_SSS_PRT_DQ"]) == (12, 108)
     tables = (r * k              # shared reference codes, uint8
               + r * 3 * 4        # their colours, float32
               + fr * 3 * 2       # reference triangles, uint16
@@ -211,14 +211,14 @@ def test_bytes_per_vertex_matches_a_hand_count(torus):
               + 3 * 9 * 4        # Δq scales, float32
               + r * (16 + 3)     # detail codes (order 4) and colours, int8
               + 16 * 4)          # detail scales, float32
-    assert b["total"] == pytest.approx(32 + tables / n)
+    assert b["total"] == pytest.approx(120 + tables / n)
     assert b["refCodes"] == pytest.approx(r * k / n)
     rgb = bytes_per_vertex(compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(reference_count=40, sh_order=3,
                                                                              tables="rgb", weight_bits=16)))
-    assert rgb["refCodes"] == pytest.approx(r * k * 3 / n) and rgb["refScale"] == 0 and rgb["_SSS_PRT_W"] == 4
+    assert rgb["refCodes"] == pytest.approx(r * k * 3 / n) and rgb["refScale"] == 0 and rgb["_SSS_PRT_REF"] == 12
     assert rgb["lut"] == pytest.approx(3 * 256 * 4 / n)
     sh_only = bytes_per_vertex(compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="sh", sh_order=1)))
-    assert sh_only["_SSS_PRT_DQ"] == 4 and sh_only["refCodes"] == 0 and sh_only["refTriangles"] == 0
+    assert sh_only["_SSS_PRT_DQ"] == 12 and sh_only["refCodes"] == 0 and sh_only["refTriangles"] == 0
 
 
 def test_weights_take_16_bits_beyond_65536_reference_triangles():
@@ -231,7 +231,6 @@ def test_weights_take_16_bits_beyond_65536_reference_triangles():
     q = np.random.default_rng(0).integers(1, 5, (3, len(v), 12)) / 4.0  # few levels: a quick Lloyd fit
     big = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(mode="lloyd"))
     assert len(big.ref_triangles) > 65536 and big.weight_bits == 16
-    assert bytes_per_vertex(big)["_SSS_PRT_W"] == 4
     np.testing.assert_allclose(decode_at_directions(big), q)
     small = compress_prt(q[:, :65536], ds, v[:65536], f[f.max(axis=1) < 65536], 1.3, PrtCompressOptions(mode="lloyd"))
     assert small.weight_bits == 8 and small.vertex_triangle.max() == 65535
@@ -240,16 +239,16 @@ def test_weights_take_16_bits_beyond_65536_reference_triangles():
 
 def test_a_byte_budget_sets_the_reference_count(torus):
     v, f, ds, q = torus
-    for budget, order in ((40.0, 0), (60.0, 2)):
+    for budget, order in ((48.0, 0), (104.0, 2)):
         prt = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=budget, sh_order=order, detail_order=4))
         total = bytes_per_vertex(prt)["total"]
         # one more point would not fit (a point: 48 codes, a colour, two uint16 triangles, 19 detail bytes)
         assert budget - (48 + 12 + 12 + 19) / len(v) < total <= budget, (budget, total)
-    small = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=20.0))
+    small = compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=28.0))
     assert len(small.ref_codes) < len(prt.ref_codes)
-    # 640 vertices: the fixed direction tables alone cost ~19 B/vertex
+    # 640 vertices: the fixed direction tables and _SSS_PRT_REF alone cost ~27 B/vertex
     with pytest.raises(ValueError, match="give at least"):
-        compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=15.0))
+        compress_prt(q, ds, v, f, 1.3, PrtCompressOptions(byte_budget=23.0))
 
 
 def test_degenerate_signals_stay_finite(torus):

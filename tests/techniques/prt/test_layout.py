@@ -38,8 +38,8 @@ def random_prt(n: int, k: int = 14, refs: int = 9, order: int = 3, seed: int = 0
         ref_codes=rng.integers(0, 256, (refs, k, channels)).astype(np.uint8),
         ref_scale=rng.random((refs if channels == 1 else 0, 3)).astype(np.float32),
         ref_triangles=rng.integers(0, max(refs, 1), (max(2 * refs - 4, 1) if refs else 0, 3)).astype(np.int32),
-        # beyond 16 bits on purpose: the index is split into lo and hi (8 and 8 bits with 8-bit weights)
-        vertex_triangle=rng.integers(0, 70000 if weight_bits == 16 else 65536, n).astype(np.int32),
+        # beyond 16 bits on purpose: float32 holds the index exactly
+        vertex_triangle=rng.integers(0, 70000, n).astype(np.int32),
         weight_codes=rng.integers(-top, top + 1, (n, 2)).astype(np.int16),
         weight_scale=1.5,
         weight_bits=weight_bits,
@@ -87,20 +87,23 @@ def test_glb_and_usd_round_trip_exactly(tmp_path, refs, order, channels, bits, d
 
 def test_layout_is_valid_gltf_and_counts_attributes(tmp_path):
     n = len(icosphere_asset().scene.meshes[0].primitives[0].positions)
-    for bits, ref_type, weights in ((16, ("VEC2", 5123), True), (8, ("VEC4", 5121), False)):
+    for bits in (16, 8):
         write_glb(prt_asset(random_prt(n, weight_bits=bits)), tmp_path / "a.glb")
         report = validate_glb(tmp_path / "a.glb")
         assert (report.num_errors, report.num_warnings) == (0, 0), report.to_json()
         gltf = pygltflib.GLTF2.load(tmp_path / "a.glb")
-        attributes = gltf.meshes[0].primitives[0].attributes
-        ref = gltf.accessors[attributes._SSS_PRT_REF]
-        assert (ref.type, ref.componentType) == ref_type and not ref.normalized
-        assert (getattr(attributes, "_SSS_PRT_W", None) is not None) == weights
-    # 8-bit weights leave 16 bits for the triangle
-    with pytest.raises(ValueError, match="weight_bits=16"):
-        prt_vertex_attributes(replace(random_prt(n, weight_bits=8), vertex_triangle=np.full(n, 65536, np.int32)),
-                              np.arange(n))
-    assert [dq_attribute_count(o) for o in (0, 1, 2, 3, 8)] == [0, 1, 3, 7, 48]
+        attributes = {k: v for k, v in vars(gltf.meshes[0].primitives[0].attributes).items()
+                      if k.startswith("_") and v is not None}
+        # one VEC3 float32 per SH coefficient (order 3) after the reference: the widths Blender needs
+        assert sorted(attributes) == ["_SSS_PRT_DQ0", "_SSS_PRT_DQ1", "_SSS_PRT_DQ2", "_SSS_PRT_DQ3", "_SSS_PRT_DQ4",
+                                      "_SSS_PRT_DQ5", "_SSS_PRT_DQ6", "_SSS_PRT_DQ7", "_SSS_PRT_DQ8", "_SSS_PRT_REF"]
+        for index in attributes.values():
+            acc = gltf.accessors[index]
+            assert (acc.type, acc.componentType, acc.normalized) == ("VEC3", 5126, False)
+    # float32 holds the triangle exactly below 2^24
+    with pytest.raises(ValueError, match="reference triangles at most"):
+        prt_vertex_attributes(replace(random_prt(n), vertex_triangle=np.full(n, 1 << 24, np.int32)), np.arange(n))
+    assert [dq_attribute_count(o) for o in (0, 1, 2, 3, 8)] == [0, 1, 4, 9, 64]
     # index tables: 16 bits while every index fits, else 32 (written as UNSIGNED_INT)
     assert index_table(np.array([[0, 65535]])).dtype == np.uint16
     assert index_table(np.array([[0, 65536]])).dtype == np.int64
@@ -119,7 +122,7 @@ def test_prt_extras_match_the_documented_schema():
     for channels, bits, detail in ((1, 8, 4), (3, 16, 0)):
         prt = random_prt(n, channels=channels, weight_bits=bits, detail_order=detail)
         gltf = pygltflib.GLTF2.load_from_bytes(to_glb(prt_asset(prt))[0])
-        mesh = gltf.meshes[0].extras["sssbake"]
+        mesh = gltf.meshes[0].extensions["SSSBAKE_subsurface"]
         jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(mesh)
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.Draft202012Validator({**sub, "$ref": "#/$defs/mesh"}).validate(

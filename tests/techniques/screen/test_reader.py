@@ -8,6 +8,8 @@ import pygltflib
 import pytest
 from fixtures import bake_screen_sphere
 
+from sssbake.exporters.gltf import EXTENSION
+from sssbake.pipeline.core.errors import StaleDataError
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.techniques.screen.reader import ScreenReadError, read_screen_glb, read_screen_usd
 from sssbake.pipeline.techniques.screen.samples import screen_samples
@@ -40,10 +42,10 @@ def test_glb_and_usd_give_the_stage_s_samples(baked):
 def test_files_without_screen_tables_and_broken_blocks_are_refused(baked, tmp_path):
     folder, _, _ = baked
     gltf = pygltflib.GLTF2.load(str(folder / "ball.glb"))
-    block = gltf.materials[0].extras["sssbake"]
+    block = gltf.materials[0].extensions[EXTENSION]
     broken = json.loads(json.dumps(block))
     broken["screen"]["driver"] = 7
-    gltf.materials[0].extras["sssbake"] = broken
+    gltf.materials[0].extensions[EXTENSION] = broken
     gltf.save(str(tmp_path / "broken.glb"))
     with pytest.raises(ScreenReadError, match="material 0: screen: need a positive table reach and a driver"):
         read_screen_glb(tmp_path / "broken.glb")
@@ -51,6 +53,28 @@ def test_files_without_screen_tables_and_broken_blocks_are_refused(baked, tmp_pa
     gltf.save(str(tmp_path / "none.glb"))
     with pytest.raises(ScreenReadError, match="bake with --techniques screen"):
         read_screen_glb(tmp_path / "none.glb")
+
+
+def test_tables_another_tool_broke_are_refused(baked, tmp_path):
+    """The rdTable's accessor renumbered (found by name, read equal), then its bytes rewritten
+    (the CRC-32 refuses it)."""
+    folder, _, made = baked
+    gltf = pygltflib.GLTF2.load(str(folder / "ball.glb"))
+    ref = gltf.materials[0].extensions[EXTENSION]["screen"]["rdTable"]
+    gltf.accessors.append(gltf.accessors[ref["accessor"]])
+    gltf.accessors[ref["accessor"]] = pygltflib.Accessor(bufferView=gltf.accessors[0].bufferView, count=1,
+                                                         componentType=5126, type="SCALAR")
+    gltf.asset.generator = "glTF-Transform v4.5.1"
+    gltf.save(str(tmp_path / "moved.glb"))
+    assert_same(read_screen_glb(tmp_path / "moved.glb")[(0, 0)], made)
+    blob = bytearray(gltf.binary_blob())
+    view = gltf.bufferViews[gltf.accessors[-1].bufferView]
+    blob[view.byteOffset:view.byteOffset + 4] = bytes(4)
+    gltf.set_binary_blob(bytes(blob))
+    gltf.asset.generator = "glTF-Transform v4.5.1"  # pygltflib's save wrote its own
+    gltf.save(str(tmp_path / "rewritten.glb"))
+    with pytest.raises(StaleDataError, match=r"sssbake/material0/screen/rdTable.*CRC-32.*likely broken by glTF-Transform"):
+        read_screen_glb(tmp_path / "rewritten.glb")
 
 
 def test_inspect_summarises_the_material_tables(baked):

@@ -1,4 +1,4 @@
-"""How spectral normals are laid out: the snorm16 attribute, the welded vertex ids, the viewer variant."""
+"""How spectral normals are laid out: the float32 attribute, the welded vertex ids, the viewer variant."""
 
 from dataclasses import replace
 
@@ -20,22 +20,22 @@ def test_attributes_of_a_primitive():
     normals = np.array([[1.0 + 1e-15, 0.0, 0.0], [0.0, -1.0, 0.0], [0.6, 0.0, 0.8]])
     vertices = np.array([2, 0, 0, 1])
     (normal,) = spectral_vertex_attributes(normals, vertices, with_vertex=False)
-    assert (normal.key, normal.encoding, normal.gltf_name) == (NORMAL_KEY, "snorm16", "_SSS_NORMAL")
+    assert (normal.key, normal.encoding, normal.gltf_name) == (NORMAL_KEY, "float32", "_SSS_NORMAL")
     assert normal.usd_name == "primvars:sss:normal"
-    # clipped to [-1, 1]: an ulp beyond would be refused by the snorm16 encoder
-    np.testing.assert_array_equal(normal.data, [[0.6, 0, 0.8], [1, 0, 0], [1, 0, 0], [0, -1, 0]])
+    np.testing.assert_array_equal(normal.data, normals[vertices])
     _, vertex = spectral_vertex_attributes(normals, vertices, with_vertex=True)
-    assert (vertex.key, vertex.encoding) == (VERTEX_KEY, "uint16")
-    np.testing.assert_array_equal(vertex.data, vertices)
+    assert (vertex.key, vertex.encoding) == (VERTEX_KEY, "float32")
+    # (id, 0, 0): the VEC3 width of every sssbake attribute; beyond 16 bits float32 stays exact
+    np.testing.assert_array_equal(vertex.data, np.c_[vertices, np.zeros((4, 2))])
     _, wide = spectral_vertex_attributes(np.tile(normals, (30000, 1)), np.array([0, 70000]), with_vertex=True)
-    np.testing.assert_array_equal(wide.data, [[0, 0], [70000 - 65536, 1]])
+    np.testing.assert_array_equal(wide.data, [[0, 0, 0], [70000, 0, 0]])
     with pytest.raises(ValueError, match="welded vertices"):
         spectral_vertex_attributes(normals, np.array([3]), with_vertex=True)
 
 
 def test_bytes_without_tables_count_only_the_normal():
     assert spectral_bytes(10, 4, False) == {"values": 0, "coefficients": 0, "residual": 0, "basis": 0, "total": 0,
-                                            "perVertex": 0.0, "normalPerRenderVertex": 8,
+                                            "perVertex": 0.0, "normalPerRenderVertex": 12,
                                             "vertexIdsPerRenderVertex": 0}
     assert spectral_bytes(10, 4, True)["total"] == 16 + 48 + 120 + 160
 
@@ -45,7 +45,7 @@ def test_variant_swaps_normals_and_drops_technique_data():
     prim = asset.scene.meshes[0].primitives[0]
     n = len(prim.positions)
     tilted = prim.normals / np.linalg.norm(prim.normals, axis=1, keepdims=True) @ np.diag([1.0, 1.0, -1.0])
-    extra = VertexAttribute("sss:kernels:vertex", np.arange(n, dtype=float), "", "uint16", "ids")
+    extra = VertexAttribute("sss:kernels:vertex", np.arange(n, dtype=float), "", "float32", "ids")
     attrs = asset.vertex_attributes[(0, 0)] + spectral_vertex_attributes(tilted, np.arange(n), True) + (extra,)
     variant = normals_variant(replace(asset, vertex_attributes={(0, 0): attrs}, mesh_extras={0: {"kernels": {}}}))
     np.testing.assert_array_equal(variant.scene.meshes[0].primitives[0].normals, tilted)

@@ -36,7 +36,7 @@ def test_normals_and_report_are_the_precompute_s(surface):
     assert report["eigenpairs"] == 30 and report["width_mm"] is None and report["basis"] is False
     assert report["widthMm"] == pytest.approx(pre.width_mm) and report["gamma"] == pytest.approx(pre.gamma)
     assert set(report["seconds"]) == set(pre.seconds) | {"total"}
-    assert report["bytes"]["total"] == 0 and report["bytes"]["normalPerRenderVertex"] == 8
+    assert report["bytes"]["total"] == 0 and report["bytes"]["normalPerRenderVertex"] == 12
     assert report["bytes"]["vertexIdsPerRenderVertex"] == 0
 
 
@@ -62,7 +62,7 @@ def test_tables_hold_the_spectrum(surface):
     sizes = baked.report["bytes"]
     assert {k: sizes[k] for k in shapes} == {k: t[k].nbytes for k in shapes}
     assert sizes["total"] == sum(t[k].nbytes for k in shapes) and sizes["perVertex"] == sizes["total"] / n
-    assert sizes["vertexIdsPerRenderVertex"] == 4
+    assert sizes["vertexIdsPerRenderVertex"] == 12
 
 
 def test_bad_options_are_refused(surface):

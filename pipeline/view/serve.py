@@ -1,0 +1,219 @@
+"""The ``sssbake view`` server: one .glb, the viewer page, the three.js runtime, the shaders, three.js.
+
+It listens on 127.0.0.1 only and serves a fixed set of URLs; nothing else on the user's disk is
+reachable (no directory listings, no ``..``). URLs:
+
+``/`` (the page), ``/viewer.js``, ``/model.glb`` (the one file), ``/runtime_three/…`` (the ES module
+runtime), ``/runtime_shaders/…`` (the GLSL it compiles), ``/three/build/…`` and
+``/three/examples/jsm/…`` (three.js from the checkout's ``node_modules``).
+"""
+
+from __future__ import annotations
+
+import http.server
+import json
+import os
+import struct
+import threading
+import urllib.parse
+from pathlib import Path
+
+import sssbake.pipeline
+import sssbake.runtime_shaders
+from sssbake.exporters.gltf_tables import load_sssbake_gltf
+from sssbake.pipeline.core.errors import AssetError, SssbakeError
+
+PAGE = Path(__file__).resolve().parent / "page"
+EXTENSION = "SSSBAKE_subsurface"
+
+#: Served types; a file with another suffix is a 404 even inside a served folder.
+_TYPES = {
+    ".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
+    ".mjs": "text/javascript; charset=utf-8", ".glsl": "text/plain; charset=utf-8",
+    ".vert": "text/plain; charset=utf-8", ".frag": "text/plain; charset=utf-8",
+    ".json": "application/json", ".glb": "model/gltf-binary",
+}
+
+
+class ViewError(SssbakeError):
+    """The viewer cannot start: three.js or the runtime is missing, or the port is taken."""
+
+    exit_code = 2
+
+
+def check_glb(path: str | os.PathLike) -> dict:
+    """The glTF JSON of a .glb that holds sssbake data; one-line `AssetError` otherwise.
+
+    Only the container is checked here (a GLB with the ``SSSBAKE_subsurface`` extension); whether its
+    tables are intact is the runtime's check, shown on the page, so that a stale file never renders.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise AssetError(path, "no such file")
+    if path.suffix.lower() != ".glb":
+        raise AssetError(path, "view shows the .glb files sssbake bake writes")
+    with open(path, "rb") as f:
+        header = f.read(20)
+        if len(header) < 20 or header[:4] != b"glTF":
+            raise AssetError(path, "not a binary glTF (.glb) file")
+        json_length, chunk_type = struct.unpack("<II", header[12:20])
+        if chunk_type != 0x4E4F534A or json_length > path.stat().st_size:  # 'JSON'
+            raise AssetError(path, "not a binary glTF (.glb) file: no JSON chunk")
+        try:
+            gltf = json.loads(f.read(json_length))
+        except ValueError as e:
+            raise AssetError(path, f"unreadable glTF JSON: {e}") from None
+    if not isinstance(gltf, dict):
+        raise AssetError(path, "unreadable glTF JSON: not an object")
+    if EXTENSION in (gltf.get("extensions") or {}):
+        return gltf
+    load_sssbake_gltf(path)  # names the tool when it dropped the extension but kept sssbake's attributes
+    raise AssetError(path, f"no sssbake data (no {EXTENSION} extension); bake it with sssbake bake")
+
+
+def served_folders(checkouts: list[Path] | None = None) -> dict[str, Path]:
+    """URL prefix -> folder for the runtime, the shaders and three.js; `ViewError` when one is missing.
+
+    Parameters
+    ----------
+    checkouts : list of Path, optional
+        Folders to look for ``node_modules/three`` and ``runtime_three/`` in, first match wins;
+        default: the checkout holding the installed package (an editable install) and its parents.
+    """
+    if checkouts is None:
+        package = Path(sssbake.pipeline.__file__).resolve().parent
+        checkouts = [package.parent, *package.parent.parents]
+    three = next((c / "node_modules" / "three" for c in checkouts
+                  if (c / "node_modules" / "three" / "build" / "three.module.js").is_file()), None)
+    if three is None:
+        raise ViewError("three.js not found (node_modules/three); run `npm ci` in the sssbake checkout")
+    runtime = next((c / "runtime_three" for c in checkouts if (c / "runtime_three" / "sssbake-three.js").is_file()),
+                   None)
+    if runtime is None:
+        raise ViewError("the three.js runtime (runtime_three/sssbake-three.js) is not installed; view runs from an "
+                        "sssbake checkout (pip install -e .)")
+    return {
+        "runtime_three/": runtime,
+        "runtime_shaders/": Path(sssbake.runtime_shaders.__file__).resolve().parent,
+        "three/build/": three / "build",
+        "three/examples/jsm/": three / "examples" / "jsm",
+    }
+
+
+def resolve(url_path: str, glb: Path, folders: dict[str, Path]) -> Path | None:
+    """The file a request path names, or None (404).
+
+    Parameters
+    ----------
+    url_path : str
+        The request's path, still percent-encoded, query removed.
+    glb : Path
+        The one model file, served as ``/model.glb``.
+    folders : dict
+        URL prefix (``"three/build/"``) -> folder, as `served_folders` gives.
+    """
+    path = urllib.parse.unquote(url_path)
+    if not path.startswith("/") or "\\" in path or "\0" in path:
+        return None
+    path = path[1:]
+    if path in ("", "index.html"):
+        return PAGE / "index.html"
+    if path == "viewer.js":
+        return PAGE / "viewer.js"
+    if path == "model.glb":
+        return glb
+    for prefix, folder in folders.items():
+        if not path.startswith(prefix):
+            continue
+        parts = path[len(prefix):].split("/")
+        # no empty, '.' or '..' segments: the path names a file below the folder and nothing else
+        if any(p in ("", ".", "..") for p in parts) or Path(parts[-1]).suffix not in _TYPES:
+            return None
+        target = folder.joinpath(*parts).resolve()
+        return target if target.is_relative_to(folder.resolve()) and target.is_file() else None
+    return None
+
+
+def _handler(glb: Path, folders: dict[str, Path], port_of) -> type[http.server.BaseHTTPRequestHandler]:
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):
+            self._send(body=True)
+
+        def do_HEAD(self):
+            self._send(body=False)
+
+        def _send(self, body: bool) -> None:
+            # A page elsewhere that rebinds its DNS name to 127.0.0.1 sends its own Host: refuse it.
+            port = port_of()
+            if self.headers.get("Host") not in (f"127.0.0.1:{port}", f"localhost:{port}"):
+                self.send_error(403, "view answers only http://127.0.0.1 and http://localhost")
+                return
+            target = resolve(urllib.parse.urlsplit(self.path).path, glb, folders)
+            if target is None:
+                self.send_error(404)
+                return
+            try:
+                data = target.read_bytes()
+            except OSError:
+                self.send_error(404)
+                return
+            self.send_response(200)
+            self.send_header("Content-Type", _TYPES.get(target.suffix.lower(), "application/octet-stream"))
+            self.send_header("Content-Length", str(len(data)))
+            self.send_header("Cache-Control", "no-store")
+            self.send_header("X-Content-Type-Options", "nosniff")
+            if target == glb:  # the page names the user's file in its title and errors
+                self.send_header("Content-Disposition", f"inline; filename*=UTF-8''{urllib.parse.quote(glb.name)}")
+            self.end_headers()
+            if body:
+                try:
+                    self.wfile.write(data)
+                except (BrokenPipeError, ConnectionResetError):  # the browser left (a reload): no traceback
+                    pass
+
+        def log_message(self, *args):  # a quiet terminal: the URL line is what the user needs
+            pass
+
+    return Handler
+
+
+class ViewServer:
+    """A running viewer: ``url``, and `close` to stop it (also a context manager).
+
+    Parameters
+    ----------
+    glb : str or os.PathLike
+        The .glb to show (checked by `check_glb`).
+    port : int
+        Loopback port; 0 for a free one.
+    folders : dict, optional
+        URL prefix -> folder (default `served_folders`'s).
+    """
+
+    def __init__(self, glb: str | os.PathLike, port: int = 0, folders: dict[str, Path] | None = None):
+        check_glb(glb)  # before resolving: errors name the file as the user gave it
+        self.glb = Path(glb).resolve()
+        folders = served_folders() if folders is None else folders
+        handler = _handler(self.glb, folders, lambda: self._server.server_address[1])
+        try:
+            self._server = http.server.ThreadingHTTPServer(("127.0.0.1", port), handler)
+        except OSError as e:
+            raise ViewError(f"cannot listen on 127.0.0.1:{port}: {e.strerror or e}") from None
+        self._server.daemon_threads = True
+        self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self._server.server_address[1]}/"
+
+    def close(self) -> None:
+        self._server.shutdown()
+        self._server.server_close()
+        self._thread.join()
+
+    def __enter__(self) -> ViewServer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

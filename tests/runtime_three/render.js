@@ -1,0 +1,56 @@
+// Renders each job of ?jobs=URL with the three.js runtime and hands the linear images back
+// (window.sssbakeResult: per job {images: {mode: base64 float32 RGBA, row 0 at the bottom}} or
+// {error}); a load the plugin refuses is a job's result, not a page error.
+import * as THREE from 'three';
+import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { SSSBakePlugin, createRuntime } from '/runtime_three/sssbake-three.js';
+
+const SHADERS = '/runtime_shaders/';
+
+function base64(floats) {
+  const bytes = new Uint8Array(floats.buffer, floats.byteOffset, floats.byteLength);
+  let text = '';
+  for (let i = 0; i < bytes.length; i += 0x8000) text += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+  return btoa(text);
+}
+
+async function run() {
+  const { size, jobs } = await (await fetch(new URLSearchParams(location.search).get('jobs'))).json();
+  const renderer = new THREE.WebGLRenderer({ canvas: document.getElementById('view'), antialias: false });
+  renderer.setPixelRatio(1);
+  renderer.setSize(size, size, false);
+  const results = [];
+  for (const job of jobs) {
+    const loader = new GLTFLoader();
+    loader.register((parser) => new SSSBakePlugin(parser, { shaderBase: SHADERS, source: job.glb }));
+    let gltf;
+    try {
+      gltf = await loader.loadAsync(job.glb);
+    } catch (error) {
+      results.push({ error: error.message, kind: error.name });
+      continue;
+    }
+    const runtime = await createRuntime(renderer, gltf.scene, gltf, { shaderBase: SHADERS, srgb: false });
+    const c = job.camera;
+    const camera = new THREE.PerspectiveCamera(c.fov, 1, c.near, c.far);
+    camera.position.set(...c.eye);
+    camera.lookAt(new THREE.Vector3(...c.target));
+    camera.updateProjectionMatrix();
+    runtime.setLight({ direction: new THREE.Vector3(...job.light), intensity: 1 });
+    const images = {};
+    const ms = {};
+    for (const mode of job.modes) {
+      runtime.setMode(mode);
+      const t = performance.now();
+      runtime.render(camera);
+      images[mode] = base64(runtime.readLinear());
+      ms[mode] = performance.now() - t;
+    }
+    results.push({ techniques: runtime.techniques, images, ms });
+    runtime.dispose();
+  }
+  window.sssbakeResult = results;
+  window.sssbakeReady = true;
+}
+
+run().catch((error) => { window.sssbakeError = `${error.name}: ${error.message}`; });
