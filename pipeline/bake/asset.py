@@ -299,12 +299,17 @@ def _extra_outputs(options: BakeOptions) -> dict[str, Callable[[BakedAsset], Bak
 
 
 def _up_to_date(outputs: tuple[Path, ...], key: str, path: Path, options: BakeOptions) -> dict | None:
-    """The old report when every output exists, its `job_key` is `key` and its dependencies hold."""
+    """The old report when every output exists (the .usdc's thickness textures too), its `job_key` is
+    `key` and its dependencies hold."""
     if not all(p.exists() for p in outputs):
         return None
     try:
         old = json.loads(outputs[2].read_text())
-    except (OSError, ValueError):
+        # by name beside the .usdc, as it references them: the folder may have moved
+        textures = [outputs[1].parent / Path(t).name for t in old["bytes"]["usdc"].get("textures", [])]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    if not all(t.is_file() for t in textures):
         return None
     return old if old.get("job_key") == key and report_dependencies_hold(old, path, options) else None
 

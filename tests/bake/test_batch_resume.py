@@ -150,3 +150,25 @@ def test_killed_batch_resumes_where_it_stopped(tmp_path):
     for n in names:
         for suffix in (".glb", ".usdc"):
             assert (out / f"{n}{suffix}").read_bytes() == (clean / f"{n}{suffix}").read_bytes(), f"{n}{suffix}"
+
+
+def test_a_missing_thickness_texture_rebakes_the_asset(tmp_path):
+    """The .usdc references ``<stem>.thickness0.png`` beside it: without that file the asset is not
+    up to date, and baking again writes it back."""
+    from sssbake.pipeline.cli import main
+
+    src, out = tmp_path / "in", tmp_path / "out"
+    src.mkdir()
+    trimesh.creation.icosphere(subdivisions=2).export(src / "ball.obj")
+    config = tmp_path / "c.toml"
+    config.write_text(CONFIG)
+    command = ["bake", str(src), "-o", str(out), "--config", str(config), "--no-validate", "-q"]
+    texture = out / "ball.thickness0.png"
+    assert main(command) == 0 and texture.is_file()
+    png = texture.read_bytes()
+    assert main(command) == 0
+    assert [r["status"] for r in json.loads((out / "batch.json").read_text())["assets"]] == ["up-to-date"]
+    texture.unlink()
+    assert main(command) == 0
+    assert [r["status"] for r in json.loads((out / "batch.json").read_text())["assets"]] == ["ok"]
+    assert texture.read_bytes() == png
