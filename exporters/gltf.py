@@ -228,9 +228,9 @@ def element_array(elements: np.ndarray, acc_type: str) -> np.ndarray:
 
 
 def table_crc32(elements: np.ndarray) -> str:
-    """A table reference's ``crc32``: zlib CRC-32 of `elements` ((count, k) in glTF's element
-    order, as `accessor_elements` gives them) packed densely little-endian, as 8 lowercase hex
-    digits."""
+    """A table reference's ``crc32``: zlib CRC-32 of `elements` packed densely little-endian, as 8
+    lowercase hex digits. glTF: (count, k) in glTF's element order, as `accessor_elements` gives
+    them; USD: the restored table."""
     packed = np.ascontiguousarray(elements, dtype=elements.dtype.newbyteorder("<"))
     return f"{zlib.crc32(packed.tobytes()):08x}"
 

@@ -53,7 +53,6 @@ import json
 import math
 import os
 import re
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +60,7 @@ from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
 from sssbake.exporters.atomic import atomic_path
 from sssbake.exporters.finite import check_finite, finite_number
-from sssbake.exporters.gltf import generator
+from sssbake.exporters.gltf import ENCODINGS, dequantize, generator, quantize, table_crc32
 from sssbake.pipeline.core.errors import StaleDataError
 from sssbake.pipeline.mesh.baked import (
     SCHEMA_VERSION,
@@ -88,10 +87,6 @@ PREVIEW_SURFACE_NOTE = ("UsdPreviewSurface has no diffuse transmission and no vo
 _T = Sdf.ValueTypeNames
 #: Float vector types by component count; Blender's importer keeps float[], float2[], float3[].
 _FLOAT_TYPES = {1: _T.FloatArray, 2: _T.Float2Array, 3: _T.Float3Array, 4: _T.Float4Array}
-#: glTF normalized encodings: (bits, signed, MAX).
-_NORMALIZED = {"snorm8": (8, True, 127), "unorm8": (8, False, 255), "snorm16": (16, True, 32767),
-               "unorm16": (16, False, 65535)}
-_INTEGER_BITS = {"uint8": 8, "uint16": 16}
 _WRAPS = {33071: "clamp", 33648: "mirror", 10497: "repeat"}
 
 
@@ -294,7 +289,7 @@ def primvar_layout(attr: VertexAttribute, data: np.ndarray, what: str
     k = 1 if data.ndim == 1 else data.shape[1]
     columns = data.reshape(len(data), k).astype(np.float64)
     meta = {"encoding": attr.encoding, "components": k, "gltfName": attr.gltf_name}
-    bits = _INTEGER_BITS.get(attr.encoding) or _NORMALIZED.get(attr.encoding, (None,))[0]
+    bits = _bits(attr.encoding)
     if bits is None:
         if k == 3 and attr.key.endswith("normal"):
             return _T.Normal3fArray, data, 1, meta
@@ -309,36 +304,33 @@ def primvar_layout(attr: VertexAttribute, data: np.ndarray, what: str
         for i in range(k):
             packed |= codes[:, i].astype(np.uint32) << np.uint32(bits * i)
         return _T.IntArray, packed.view(np.int32), 1, {**meta, "packedBits": bits}
-    if attr.encoding in _INTEGER_BITS:
+    if not ENCODINGS[attr.encoding][2]:  # plain integers
         return _T.IntArray, codes.astype(np.int32) if k > 1 else codes[:, 0].astype(np.int32), k, meta
     # normalized values that do not pack: decoded floats, what a glTF reader gets
     decoded = _decode(codes, attr.encoding).astype(np.float32)
     return (_FLOAT_TYPES[k], decoded, 1, meta) if k in _FLOAT_TYPES else (_T.FloatArray, decoded, k, meta)
 
 
+def _bits(encoding: str) -> int | None:
+    """Bits per component of an integer glTF `encoding` (`ENCODINGS`); None for float data."""
+    dtype = np.dtype(ENCODINGS[encoding][1]) if encoding in ENCODINGS else None
+    return None if dtype is None or dtype.kind == "f" else 8 * dtype.itemsize
+
+
 def _codes(columns: np.ndarray, encoding: str, what: str) -> np.ndarray:
-    """(n, k) unsigned integer codes of `columns` for `encoding` (signed codes two's complement)."""
-    if encoding in _INTEGER_BITS:
-        top = (1 << _INTEGER_BITS[encoding]) - 1
-        if columns.size and (columns.min() < 0 or columns.max() > top or np.any(columns != np.round(columns))):
-            raise ValueError(f"{what} needs integers in [0, {top}]")
-        return columns.astype(np.int64)
-    bits, signed, top = _NORMALIZED[encoding]
-    low = -1.0 if signed else 0.0
-    if columns.size and (columns.min() < low or columns.max() > 1.0):
-        raise ValueError(f"{what} needs values in [{low:g}, 1] for {encoding}")
-    return np.round(columns * top).astype(np.int64) % (1 << bits)
+    """(n, k) unsigned integer codes of `columns` for `encoding` (glTF's `quantize`; signed codes
+    two's complement)."""
+    try:
+        stored = quantize(columns, encoding)
+    except ValueError as e:
+        raise ValueError(f"{what}: {e}") from None
+    return stored.astype(np.int64) % (1 << (8 * stored.dtype.itemsize))
 
 
 def _decode(codes: np.ndarray, encoding: str) -> np.ndarray:
-    """float64 values of unsigned `codes` as glTF decodes `encoding` (``max(c / MAX, -1)`` signed)."""
-    if encoding in _INTEGER_BITS:
-        return codes.astype(np.float64)
-    bits, signed, top = _NORMALIZED[encoding]
-    c = codes.astype(np.int64)
-    if signed:
-        c = np.where(c >= 1 << (bits - 1), c - (1 << bits), c)
-    return np.maximum(c / top, -1.0)
+    """float64 values of unsigned `codes` as glTF decodes `encoding` (`dequantize`)."""
+    _, dtype, normalized = ENCODINGS[encoding]
+    return dequantize(codes.astype(np.int64).astype(dtype), normalized)
 
 
 def primvar_values(primvar: UsdGeom.Primvar) -> np.ndarray:
@@ -354,7 +346,7 @@ def primvar_values(primvar: UsdGeom.Primvar) -> np.ndarray:
     raw = primvar.Get()
     values = np.zeros(0) if raw is None else np.asarray(raw)
     encoding, k = data.get("encoding"), int(data.get("components", 1))
-    coded = encoding in _INTEGER_BITS or encoding in _NORMALIZED
+    coded = _bits(encoding) is not None
     if "packedBits" in data and coded:
         bits = int(data["packedBits"])
         unsigned = values.reshape(-1).astype(np.int32).view(np.uint32).astype(np.int64)
@@ -657,12 +649,7 @@ def _table(prim: Usd.Prim, name: str, array: np.ndarray, where: str) -> dict:
     attribute = prim.CreateAttribute(name, type_name, custom=True)
     attribute.Set(type_name.type.pythonClass.FromNumpy(np.ascontiguousarray(values)))
     attribute.SetCustomData({"shape": Vt.IntArray(list(shape)), "dtype": restored.dtype.name, "source": where})
-    return {"attribute": name, "shape": list(shape), "crc32": _crc32(restored)}
-
-
-def _crc32(array: np.ndarray) -> str:
-    little = np.ascontiguousarray(array, dtype=array.dtype.newbyteorder("<"))
-    return f"{zlib.crc32(little.tobytes()):08x}"
+    return {"attribute": name, "shape": list(shape), "crc32": table_crc32(restored)}
 
 
 def check_schema(stage: Usd.Stage) -> None:
@@ -768,8 +755,9 @@ def _read_table(prim: Usd.Prim, ref: dict, what: str) -> np.ndarray:
     if values.size != math.prod(shape):
         raise _stale(prim, f"{where} has {values.size} values, its reference says shape {list(shape)}")
     restored = values.astype(dtype).reshape(shape)
-    if _crc32(restored) != ref["crc32"]:
-        raise _stale(prim, f"{where} fails its CRC-32 ({_crc32(restored)}, reference {ref['crc32']})")
+    crc = table_crc32(restored)
+    if crc != ref["crc32"]:
+        raise _stale(prim, f"{where} fails its CRC-32 ({crc}, reference {ref['crc32']})")
     return restored
 
 

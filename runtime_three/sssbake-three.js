@@ -13,7 +13,10 @@
 // `three` and `three/addons/...` come from the page's import map.
 import * as THREE from 'three';
 
-export const EXTENSION = 'SSSBAKE_subsurface';
+import { crc32Hex, ENCODINGS, EXTENSION, likelyTool } from './sssbake-format.mjs';
+
+export { EXTENSION };
+
 const SCHEMA_MAJOR = 2;
 /** Width of the wrapped 2-D layout of long tables (pipeline/render/renderer.py TABLE_WIDTH). */
 const TABLE_WIDTH = 4096;
@@ -25,11 +28,6 @@ const ESSL_PRELUDE = 'precision highp float;\nprecision highp int;\nprecision hi
 const INCLUDE = /^[ \t]*#include[ \t]+"([^"]+)"[ \t]*$/gm;
 const COMPONENTS = { SCALAR: 1, VEC2: 2, VEC3: 3, VEC4: 4, MAT2: 4, MAT3: 9, MAT4: 16 };
 const ARRAYS = { 5120: Int8Array, 5121: Uint8Array, 5122: Int16Array, 5123: Uint16Array, 5125: Uint32Array, 5126: Float32Array };
-/** glTF componentType and normalized flag of each attribute encoding (exporters/gltf.py ENCODINGS). */
-const ENCODINGS = {
-  float32: [5126, false], snorm8: [5120, true], snorm16: [5122, true], unorm8: [5121, true],
-  unorm16: [5123, true], uint8: [5121, false], uint16: [5123, false],
-};
 /** Screen runtime defaults (pipeline/techniques/screen/runtime.py ScreenRuntimeOptions). */
 const SCREEN_DEFAULTS = { jacobian: true, fill: true, interleave: 4, resolve: true };
 /** Length of the shader's SH coefficient arrays: SH_MAX_ORDER² (sh_basis.glsl). */
@@ -46,32 +44,6 @@ export class SSSBakeDataError extends Error {
 
 // ---------------------------------------------------------------------------------------------
 // Reading the extension
-
-let crcTable = null;
-
-/** zlib's CRC-32 of `bytes` (Uint8Array). */
-export function crc32(bytes) {
-  if (crcTable === null) {
-    crcTable = new Uint32Array(256);
-    for (let n = 0; n < 256; n++) {
-      let c = n;
-      for (let k = 0; k < 8; k++) c = c & 1 ? 0xedb88320 ^ (c >>> 1) : c >>> 1;
-      crcTable[n] = c >>> 0;
-    }
-  }
-  let crc = 0xffffffff;
-  for (let i = 0; i < bytes.length; i++) crc = crcTable[(crc ^ bytes[i]) & 0xff] ^ (crc >>> 8);
-  return (crc ^ 0xffffffff) >>> 0;
-}
-
-/** The tool that likely broke a file's sssbake data, from its asset.generator
- * (exporters/gltf_tables.py likely_tool). */
-function likelyTool(generator) {
-  if (generator.includes('glTF-Transform')) return 'glTF-Transform';
-  if (generator.includes('gltfpack')) return 'gltfpack';
-  if (generator.includes('Khronos glTF Blender I/O')) return 'Blender (Khronos glTF Blender I/O)';
-  return `a tool that did not keep the ${EXTENSION} extension`;
-}
 
 /** The keys of a table reference, all required (exporters/gltf_tables.py REFERENCE_KEYS). */
 const REFERENCE_KEYS = ['accessor', 'componentType', 'count', 'crc32', 'name', 'type'];
@@ -154,7 +126,7 @@ export class SSSBakePlugin {
     }
     const attribute = await this.parser.getDependency('accessor', index);
     const array = denseArray(attribute, def.componentType);
-    const crc = crc32(new Uint8Array(array.buffer, array.byteOffset, array.byteLength)).toString(16).padStart(8, '0');
+    const crc = crc32Hex(new Uint8Array(array.buffer, array.byteOffset, array.byteLength));
     if (crc !== ref.crc32) this.stale(`${table}: accessor ${index}'s data has CRC-32 ${crc}, the reference ${ref.crc32}`);
     return { name: ref.name, array, itemSize: COMPONENTS[def.type], count: def.count };
   }

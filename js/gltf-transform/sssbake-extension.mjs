@@ -8,43 +8,12 @@
 // to (join, quantize, ...) makes the write fail with one line instead of writing data that no longer fits.
 import { Extension, ExtensionProperty, PropertyType, RefMap } from '@gltf-transform/core';
 
-export const SSSBAKE_SUBSURFACE = 'SSSBAKE_subsurface';
+import { crc32Hex, ENCODINGS, EXTENSION as SSSBAKE_SUBSURFACE, likelyTool } from '../../runtime_three/sssbake-format.mjs';
+
+export { SSSBAKE_SUBSURFACE };
 const SCHEMA_MAJOR = '2';
 
-// Root `attributes[].encoding` -> [componentType, normalized]; readers check the same.
-const ENCODINGS = {
-  float32: [5126, false], int8: [5120, false], uint8: [5121, false], int16: [5122, false],
-  uint16: [5123, false], uint32: [5125, false], snorm8: [5120, true], unorm8: [5121, true],
-  snorm16: [5122, true], unorm16: [5123, true],
-};
-
 const COMPRESSIONS = ['KHR_draco_mesh_compression', 'EXT_meshopt_compression'];
-
-const CRC_TABLE = (() => {
-  const table = new Uint32Array(256);
-  for (let n = 0; n < 256; n++) {
-    let c = n;
-    for (let k = 0; k < 8; k++) c = c & 1 ? 0xedb88320 ^ (c >>> 1) : c >>> 1;
-    table[n] = c >>> 0;
-  }
-  return table;
-})();
-
-/** zlib CRC-32 of bytes, as 8 lowercase hex digits (the schema's `crc32`). */
-export function crc32Hex(bytes) {
-  let c = 0xffffffff;
-  for (let i = 0; i < bytes.length; i++) c = CRC_TABLE[(c ^ bytes[i]) & 0xff] ^ (c >>> 8);
-  return ((c ^ 0xffffffff) >>> 0).toString(16).padStart(8, '0');
-}
-
-/** The tool that likely rewrote a file, from its `asset.generator` (the schema's wording). */
-export function likelyTool(generator) {
-  const g = String(generator || '');
-  if (/glTF-Transform/i.test(g)) return 'glTF-Transform';
-  if (/gltfpack/i.test(g)) return 'gltfpack';
-  if (/Khronos glTF Blender I\/O/i.test(g)) return 'Blender (Khronos glTF Blender I/O)';
-  return 'a tool that did not keep the SSSBAKE_subsurface extension';
-}
 
 // A table reference is known by its `name` and `crc32` (its `accessor` index is only a hint).
 function isTableRef(value) {
