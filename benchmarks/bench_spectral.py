@@ -74,7 +74,7 @@ def timed(name: str, eigenpairs: int) -> tuple[str, int, float]:
     line = (f"{name}: {st['vertices']} vertices, {mm:g} mm/unit {material_name}, m={st['eigenpairs']} in "
             f"{st['bands']} bands: {total:.1f} s ({steps}); process peak RSS {rss:.0f} MB (basis "
             f"{pre.spectrum.basis.nbytes / 2**20:.0f} MB); width {st['widthMm']:.2f} mm, gamma {st['gamma']:.3g}, "
-            f"filter at the cut {st['filterAtCutoff']:.3g}; naive radius {st['naiveRadiusMm']:.2f} mm; "
+            f"filter at the cut {st['filterAtCutoff']:.3g}; "
             f"mean tilt {st['meanTiltDegrees']:.2f} deg")
     return line, st["vertices"], pre.seconds["eigensolve"]
 

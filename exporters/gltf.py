@@ -28,7 +28,6 @@ import math
 import os
 import struct
 import zlib
-from pathlib import Path
 
 import numpy as np
 import pygltflib as g
@@ -236,11 +235,20 @@ def table_crc32(elements: np.ndarray) -> str:
 
 
 def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
-    """Encode `asset` as GLB bytes.
+    """Encode `asset` as GLB bytes: `glb_pieces` joined."""
+    pieces, summary = glb_pieces(asset)
+    return b"".join(pieces), summary
+
+
+def glb_pieces(asset: BakedAsset) -> tuple[list, dict]:
+    """Encode `asset` as GLB, in pieces: the buffer views are the asset's own arrays where they
+    are stored as they are (a bake's tables run to hundreds of MB: joined copies of them were
+    the bake's memory peak).
 
     Returns
     -------
-    data : bytes
+    pieces : list of bytes-like
+        The file is their concatenation.
     summary : dict
         ``bytes`` (file size), ``json_bytes``, ``bin_bytes``, ``vertices`` (all primitives),
         ``blocks`` {block name: bytes} (glTF attribute names such as ``POSITION``,
@@ -323,13 +331,14 @@ def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
     gltf.extensionsUsed = sorted(used | {EXTENSION})
 
     blob = packer.blob()
-    if blob:
-        gltf.buffers.append(g.Buffer(byteLength=len(blob)))
-    data, json_bytes = _pack_glb(gltf, blob)
+    bin_bytes = sum(len(piece) for piece in blob)
+    if bin_bytes:
+        gltf.buffers.append(g.Buffer(byteLength=bin_bytes))
+    pieces, json_bytes = _pack_glb(gltf, blob, bin_bytes)
 
     blocks = dict(packer.blocks)
     kinds = dict(packer.kinds)
-    kinds["padding"] = len(blob) - sum(kinds.values())
+    kinds["padding"] = bin_bytes - sum(kinds.values())
     vertex_bytes = {name: blocks[name] for name in vertex_counts}
     per_vertex = {name: vertex_bytes[name] / vertex_counts[name] for name in vertex_counts}
     per_vertex["total"] = sum(vertex_bytes.values()) / total_vertices if total_vertices else 0.0
@@ -337,15 +346,15 @@ def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
         sum(b for name, b in vertex_bytes.items() if name.startswith("_")) / total_vertices if total_vertices else 0.0
     )
     summary = {
-        "bytes": len(data),
+        "bytes": sum(len(piece) for piece in pieces),
         "json_bytes": json_bytes,
-        "bin_bytes": len(blob),
+        "bin_bytes": bin_bytes,
         "vertices": total_vertices,
         "blocks": blocks,
         "kinds": kinds,
         "bytes_per_vertex": per_vertex,
     }
-    return data, summary
+    return pieces, summary
 
 
 def write_glb(asset: BakedAsset, path: str | os.PathLike) -> dict:
@@ -356,9 +365,10 @@ def write_glb(asset: BakedAsset, path: str | os.PathLike) -> dict:
     dict
         `to_glb`'s summary plus ``path``.
     """
-    data, summary = to_glb(asset)
-    with atomic_path(path) as tmp:
-        Path(tmp).write_bytes(data)
+    pieces, summary = glb_pieces(asset)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        for piece in pieces:
+            f.write(piece)
     return {"path": str(path), **summary}
 
 
@@ -367,12 +377,12 @@ class _Packer:
 
     def __init__(self, gltf: g.GLTF2):
         self.gltf = gltf
-        self.chunks: list[bytes] = []
+        self.chunks: list = []  # bytes-like, 1-D
         self.length = 0
         self.blocks: dict[str, int] = {}
         self.kinds = {"vertex": 0, "index": 0, "image": 0, "table": 0}
 
-    def view(self, raw: bytes, kind: str, block: str, target: int | None = None, stride: int | None = None) -> int:
+    def view(self, raw, kind: str, block: str, target: int | None = None, stride: int | None = None) -> int:
         pad = -self.length % 4
         if pad:
             self.chunks.append(b"\0" * pad)
@@ -408,7 +418,7 @@ class _Packer:
                 padded = np.zeros((n, stride), dtype=np.uint8)
                 padded[:, : raw.shape[1]] = raw
                 raw = padded
-        view = self.view(raw.tobytes(), kind, block, target=target, stride=stride)
+        view = self.view(raw.reshape(-1).data, kind, block, target=target, stride=stride)
         accessor = g.Accessor(
             bufferView=view, byteOffset=None, componentType=component, normalized=normalized or None,
             count=n, type=acc_type, name=name,
@@ -419,22 +429,22 @@ class _Packer:
         self.gltf.accessors.append(accessor)
         return len(self.gltf.accessors) - 1
 
-    def blob(self) -> bytes:
-        pad = -self.length % 4
-        return b"".join(self.chunks) + b"\0" * pad
+    def blob(self) -> list:
+        """The buffer's pieces, padded to a multiple of 4 bytes."""
+        return self.chunks + [b"\0" * (-self.length % 4)]
 
 
-def _pack_glb(gltf: g.GLTF2, blob: bytes) -> tuple[bytes, int]:
+def _pack_glb(gltf: g.GLTF2, blob: list, bin_bytes: int) -> tuple[list, int]:
     # pygltflib's own GLB writer drops empty values everywhere, extras included ("unit": "",
     # "warnings": []); this keeps extras and extensions exactly as given.
     doc = _prune(g.gltf_asdict(gltf))
     text = json.dumps(doc, allow_nan=False, separators=(",", ":")).encode("utf-8")
     text += b" " * (-len(text) % 4)
     chunks = [struct.pack("<I4s", len(text), b"JSON"), text]
-    if blob:
-        chunks += [struct.pack("<I4s", len(blob), b"BIN\0"), blob]
-    body = b"".join(chunks)
-    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body, len(text)
+    if bin_bytes:
+        chunks += [struct.pack("<I4s", bin_bytes, b"BIN\0"), *blob]
+    total = 12 + sum(len(c) for c in chunks)
+    return [struct.pack("<4sII", b"glTF", 2, total), *chunks], len(text)
 
 
 def _prune(value):

@@ -12,6 +12,7 @@ import json
 import os
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from importlib.metadata import version
 from pathlib import Path
@@ -58,7 +59,7 @@ from sssbake.pipeline.techniques.registry import TECHNIQUES
 from sssbake.pipeline.techniques.technique import MATERIAL, MESH, TechniqueBake
 
 # Bump a stage's version when its output for the same input changes (a technique's: its `stage_version`).
-STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 4, "thickness": 1, "thickness_map": 2,
+STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 1, "thickness_map": 2,
                   **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 3}
 
 LINEAR, CLAMP_TO_EDGE = 9729, 33071
@@ -238,8 +239,7 @@ def bake_asset(
     t_start = time.perf_counter()
     path = Path(path)
     extra = _extra_outputs(options)
-    outputs = (out_base.with_suffix(".glb"), out_base.with_suffix(".usdc"), out_base.with_suffix(".report.json"),
-               *(out_base.with_suffix(f".{name}.glb") for name in extra))
+    outputs = _outputs(out_base, extra)
     digest = file_digest(path)
     key = job_key(digest, options, picks)
     old = _up_to_date(outputs, key, path, options)
@@ -293,6 +293,22 @@ def bake_asset(
     return BakeResult(_write(b, asset, outputs, extra, head, path, t_start), outputs)
 
 
+def up_to_date_result(path: Path, options: BakeOptions, out_base: Path) -> BakeResult | None:
+    """What `bake_asset` returns at once when the outputs of `path` under `options` (no budget
+    picks) are up to date, else None: a batch checks it before it starts a worker."""
+    outputs = _outputs(out_base, _extra_outputs(options))
+    if not all(p.exists() for p in outputs):
+        return None
+    old = _up_to_date(outputs, job_key(file_digest(path), options), Path(path), options)
+    return BakeResult(old, outputs, up_to_date=True) if old is not None else None
+
+
+def _outputs(out_base: Path, extra: dict) -> tuple[Path, ...]:
+    """The .glb, .usdc and .report.json, then the `extra` outputs' .glb files."""
+    return (out_base.with_suffix(".glb"), out_base.with_suffix(".usdc"), out_base.with_suffix(".report.json"),
+            *(out_base.with_suffix(f".{name}.glb") for name in extra))
+
+
 def _extra_outputs(options: BakeOptions) -> dict[str, Callable[[BakedAsset], BakedAsset]]:
     """The techniques' extra files under `options` (`Technique.extra_outputs`), in registry order."""
     return {name: make for t in TECHNIQUES for name, make in t.extra_outputs(options.technique_options(t.name)).items()}
@@ -320,14 +336,20 @@ def _load(runner: StageRunner, path: Path, digest: str, options: BakeOptions) ->
     scene, k_load = runner.run("load", STAGE_VERSIONS["load"], digest, LoadParams(options.allow_roots), load_stage,
                                str(path), fresh=lambda cached: dependencies_hold(cached.dependencies, confinement))
     # The asset's digest alone does not name the scene: a changed buffer, texture or layer changes every later key.
-    k_load = stage_key(k_load, "dependencies", 0, dict(scene.dependencies))
+    # Nor do the allowed roots, which only decide whether it may be read: keyed on what was read.
+    k_load = stage_key(digest, "dependencies", STAGE_VERSIONS["load"], dict(scene.dependencies))
     clean, k_clean = runner.run("clean", STAGE_VERSIONS["clean"], k_load, None, clean_scene, scene)
     return scene, clean, k_clean
 
 
 def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path, picks: dict | None) -> None:
     """Mesh `mi`: its sizes and, when it scatters, its general stages, the techniques chosen for it and
-    its baked primitives, thickness texture and scattering materials."""
+    its baked primitives, thickness texture and scattering materials.
+
+    xatlas runs in a child process on one core, so the atlas is made on a thread that waits for it
+    while the stages that do not read the atlas (thickness, the plan, the atlas-free techniques)
+    run here; the thickness map and the techniques that read the atlas follow it.
+    """
     mesh = b.scene.meshes[mi]
     mesh_mm = b.mm_per_unit * instance_scale(b.scene, mi, b.warnings)
     b.scale_mm[mi] = mesh_mm
@@ -336,39 +358,57 @@ def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path,
     b.sizes[mesh.name] = [_size_report(mesh.name, diag_mm, b.material_of[m], b.warnings) for m in mats]
     if not mats:
         return
-    stages = _mesh_stages(b, mi, surface, mesh_mm, mesh_key)
-    if b.auto:
-        chosen, mesh_options = _plan_mesh(b, mi, mats, surface, stages.thickness, mesh_mm, mesh_key, path, picks)
-    else:
-        chosen, mesh_options = set(b.options.techniques), b.options
-    b.used |= chosen
-    results = _bake_mesh_techniques(b, mi, mats, surface, stages, mesh_mm, mesh_key, chosen, mesh_options)
+    with ThreadPoolExecutor(1) as pool:
+        atlas = pool.submit(_atlas, b, mi, mesh_key)
+        thick = _thickness(b, mi, surface, mesh_mm, mesh_key)
+        if b.auto:
+            chosen, mesh_options = _plan_mesh(b, mi, mats, surface, thick, mesh_mm, mesh_key, path, picks)
+        else:
+            chosen, mesh_options = set(b.options.techniques), b.options
+        b.used |= chosen
+        results = _bake_mesh_techniques(b, mi, mats, surface, None, mesh_mm, mesh_key, chosen, mesh_options)
+        atlas, k_atlas = atlas.result()
+    tmap, _ = b.runner.run("thickness_map", STAGE_VERSIONS["thickness_map"], mesh_key,
+                           ThicknessMapParams(_atlas_params(b.options), b.options.thickness_rays), thickness_map_stage,
+                           atlas, [(p.positions, p.normals) for p in mesh.primitives], surface, _miss_cap(surface))
+    stages = _MeshStages(atlas, k_atlas, thick, tmap)
+    results |= _bake_mesh_techniques(b, mi, mats, surface, stages, mesh_mm, mesh_key, chosen, mesh_options)
     _baked_mesh(b, mi, mats, surface, stages, mesh_mm, results)
 
 
-def _mesh_stages(b: _Baking, mi: int, surface: Surface, mesh_mm: float, mesh_key: str) -> _MeshStages:
-    """Atlas, thickness and thickness map of mesh `mi` (its welded `surface`)."""
+def _atlas_params(options: BakeOptions) -> AtlasParams:
+    return AtlasParams(options.atlas_resolution, options.atlas_padding)
+
+
+def _miss_cap(surface: Surface) -> float:
+    """Where a thickness ray that leaves the mesh is capped: the bounding-box diagonal (file units)."""
+    return float(np.linalg.norm(np.ptp(surface.positions, axis=0)))
+
+
+def _atlas(b: _Baking, mi: int, mesh_key: str) -> tuple[Atlas, str]:
+    """Mesh `mi`'s atlas and its key (recorded in the report's ``atlas`` block)."""
     mesh = b.scene.meshes[mi]
-    atlas_params = AtlasParams(b.options.atlas_resolution, b.options.atlas_padding)
-    atlas, k_atlas = b.runner.run("atlas", STAGE_VERSIONS["atlas"], mesh_key, atlas_params, atlas_stage,
+    atlas, k_atlas = b.runner.run("atlas", STAGE_VERSIONS["atlas"], mesh_key, _atlas_params(b.options), atlas_stage,
                                   [(p.positions, p.faces) for p in mesh.primitives])
     b.atlases[mesh.name] = {
         "width": atlas.width, "height": atlas.height, "charts": atlas.chart_count, "jittered": atlas.jittered,
         # The child's own peak (a cached atlas reports the run that made it): the parent's RSS misses it.
         "xatlas_peak_rss_mb": round(atlas.worker_peak_rss_mb, 1) if np.isfinite(atlas.worker_peak_rss_mb) else None,
     }
-    cap = float(np.linalg.norm(np.ptp(surface.positions, axis=0)))
+    return atlas, k_atlas
+
+
+def _thickness(b: _Baking, mi: int, surface: Surface, mesh_mm: float, mesh_key: str) -> ThicknessResult:
+    """Per-vertex thickness of mesh `mi`'s welded `surface` (a warning when rays left it)."""
+    cap = _miss_cap(surface)
     thick, _ = b.runner.run("thickness", STAGE_VERSIONS["thickness"], mesh_key, ThicknessParams(b.options.thickness_rays),
                             thickness_stage, surface, cap)
     if not thick.hit.all():
         b.warnings.append(
-            f"mesh {mesh.name!r}: {int((~thick.hit).sum())} of {len(thick.hit)} thickness rays left the "
+            f"mesh {b.scene.meshes[mi].name!r}: {int((~thick.hit).sum())} of {len(thick.hit)} thickness rays left the "
             f"mesh (open surface); they were capped at the bounding-box diagonal ({cap * mesh_mm:.4g} mm)"
         )
-    tmap, _ = b.runner.run("thickness_map", STAGE_VERSIONS["thickness_map"], mesh_key,
-                           ThicknessMapParams(atlas_params, b.options.thickness_rays), thickness_map_stage, atlas,
-                           [(p.positions, p.normals) for p in mesh.primitives], surface, cap)
-    return _MeshStages(atlas, k_atlas, thick, tmap)
+    return thick
 
 
 def _plan_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, thickness: ThicknessResult, mesh_mm: float,
@@ -395,14 +435,15 @@ def _plan_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, thickness
     return {t for e in entries for t in e.techniques}, b.options.merged({k: v for e in entries for k, v in e.params.items()})
 
 
-def _bake_mesh_techniques(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: _MeshStages, mesh_mm: float,
-                          mesh_key: str, chosen: set[str], options: BakeOptions) -> dict[str, TechniqueBake]:
-    """The `chosen` mesh-scope techniques on mesh `mi` under `options`, with its first scattering material."""
+def _bake_mesh_techniques(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: _MeshStages | None,
+                          mesh_mm: float, mesh_key: str, chosen: set[str], options: BakeOptions) -> dict[str, TechniqueBake]:
+    """The `chosen` mesh-scope techniques on mesh `mi` under `options`, with its first scattering
+    material: those that read the atlas when `stages` is given, else the others."""
     mesh = b.scene.meshes[mi]
     primitives = tuple((p.positions, p.normals) for p in mesh.primitives)
     results = {}
     for t in TECHNIQUES:
-        if t.scope != MESH or t.name not in chosen:
+        if t.scope != MESH or t.name not in chosen or t.needs_atlas != (stages is not None):
             continue
         _one_material(t.name, mesh, mats, b.scene, b.warnings)
         geometry = {"surface": surface, "primitives": primitives}
@@ -410,7 +451,8 @@ def _bake_mesh_techniques(b: _Baking, mi: int, mats: list[int], surface: Surface
             geometry.update(atlas=stages.atlas, atlas_padding=b.options.atlas_padding)
         # Keyed on the atlas when the technique reads it, else on the mesh: the welded surface.
         result, _ = b.runner.run(t.name, t.stage_version, stages.atlas_key if t.needs_atlas else mesh_key,
-                                 TechniqueParams(b.material_of[mats[0]], mesh_mm, options.technique_options(t.name)),
+                                 TechniqueParams(b.material_of[mats[0]], mesh_mm,
+                                                 t.stage_options(options.technique_options(t.name))),
                                  technique_stage, t, geometry)
         b.warnings.extend(f"mesh {mesh.name!r}: {w}" for w in result.warnings)
         if result.tables is not None:
@@ -449,6 +491,8 @@ def _baked_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: 
                 *(a for t in TECHNIQUES if t.name in results for a in t.vertex_attributes(results[t.name], welded)),
             )
     b.meshes[mi] = Mesh(mesh.name, tuple(prims))
+    if mi in b.mesh_extras:  # in registry order, however the stages ran
+        b.mesh_extras[mi] = {t.name: b.mesh_extras[mi][t.name] for t in TECHNIQUES if t.name in b.mesh_extras[mi]}
     ref = TextureRef(len(b.textures) - 1, uv_set)
     for m in mats:
         fallback = make_fallback(b.material_of[m], mesh_mm, thick * mesh_mm, ref, tmax)
@@ -467,7 +511,7 @@ def _bake_materials(b: _Baking) -> None:
         if chosen:
             b.used.add(t.name)
         for m in sorted(chosen):
-            options = b.material_options.get(m, b.options).technique_options(t.name)
+            options = t.stage_options(b.material_options.get(m, b.options).technique_options(t.name))
             result, _ = b.runner.run(t.name, t.stage_version, "material",
                                      TechniqueParams(b.scattering[m].material, 1.0, options), technique_stage, t, {})
             name = b.scene.materials[m].name

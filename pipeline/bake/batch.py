@@ -132,18 +132,7 @@ def run_job(job: Job, config: BatchConfig, overrides: dict, cache_dir: str | Non
         options = config.options_for(job.rel, overrides)
         job.out_base.parent.mkdir(parents=True, exist_ok=True)
         bake = bake_asset if options.budget_rmse is None else bake_within_budget
-        result = bake(job.path, options, job.out_base, StageCache(cache_dir))
-        record["outputs"] = [str(p) for p in result.outputs]
-        record["warnings"] = len(result.report.get("warnings", []))
-        invalid = [
-            f"{fmt}: {v['errors']} validation error(s)"
-            for fmt, v in result.report.get("validation", {}).items()
-            if v.get("errors")
-        ]
-        if invalid:
-            record.update(status="failed", error=f"{job.path}: exported files are invalid ({'; '.join(invalid)}); see the report")
-        else:
-            record["status"] = "up-to-date" if result.up_to_date else "ok"
+        _record_result(record, job, bake(job.path, options, job.out_base, StageCache(cache_dir)))
     except AssetError as e:
         record.update(status="failed", error=str(e))
     except OSError as e:
@@ -158,6 +147,40 @@ def run_job(job: Job, config: BatchConfig, overrides: dict, cache_dir: str | Non
             error=f"{job.path}: internal error {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''} "
             f"(at {Path(frame.filename).name}:{frame.lineno})",
         )
+    record["seconds"] = round(time.perf_counter() - t0, 3)
+    return record
+
+
+def _record_result(record: dict, job: Job, result) -> None:
+    """`record` (`run_job`'s) completed from a `BakeResult`."""
+    record["outputs"] = [str(p) for p in result.outputs]
+    record["warnings"] = len(result.report.get("warnings", []))
+    invalid = [
+        f"{fmt}: {v['errors']} validation error(s)"
+        for fmt, v in result.report.get("validation", {}).items()
+        if v.get("errors")
+    ]
+    if invalid:
+        record.update(status="failed", error=f"{job.path}: exported files are invalid ({'; '.join(invalid)}); see the report")
+    else:
+        record["status"] = "up-to-date" if result.up_to_date else "ok"
+
+
+def up_to_date_record(job: Job, config: BatchConfig, overrides: dict) -> dict | None:
+    """`run_job`'s record for a job whose outputs are up to date, None for any other (a worker
+    bakes it, or reports its error): starting a worker costs seconds, checking milliseconds."""
+    from sssbake.pipeline.bake.asset import up_to_date_result
+
+    t0 = time.perf_counter()
+    try:
+        options = config.options_for(job.rel, overrides)
+        result = up_to_date_result(job.path, options, job.out_base) if options.budget_rmse is None else None
+    except (SssbakeError, OSError, ValueError):
+        return None
+    if result is None:
+        return None
+    record = {"asset": str(job.path), "outputs": []}
+    _record_result(record, job, result)
     record["seconds"] = round(time.perf_counter() - t0, 3)
     return record
 
@@ -229,11 +252,12 @@ def run_batch(
                 records.append(run_job(job, config, overrides, cache_dir))
                 bar.update()
         else:
+            records = [up_to_date_record(job, config, overrides) for job in todo]
+            bar.update(sum(r is not None for r in records))
             # Largest input first: with a few long assets, starting them last would leave workers idle.
-            order = sorted(range(len(todo)), key=lambda i: -input_bytes(todo[i].path))
+            order = sorted((i for i, r in enumerate(records) if r is None), key=lambda i: -input_bytes(todo[i].path))
             done = supervise([task_for(todo[i], config, overrides, cache_dir) for i in order], jobs,
                              on_done=lambda _i, _record: bar.update())
-            records = [None] * len(todo)
             for i, record in zip(order, done):
                 records[i] = record
         bar.close()

@@ -101,7 +101,11 @@ class StageCache:
             return None
         path = self._path(key)
         try:
-            data = path.read_bytes()
+            with open(path, "rb") as f:
+                # read into a writable buffer: the decoded arrays are views of it, not copies
+                data = bytearray(os.fstat(f.fileno()).st_size)
+                if f.readinto(data) != len(data):
+                    data = data[:0]  # changed while read: damaged below
         except OSError:
             return None
         head = len(MAGIC) + 32

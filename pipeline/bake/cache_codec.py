@@ -16,9 +16,10 @@ finite float or a string standing for itself, or an object with one key that say
 - ``{"c": [module, qualname, {field: NODE, ...}]}``: an instance of a dataclass defined in a
   ``sssbake.`` module, every one of its fields in order.
 
-Arrays are written with `numpy.save` (``allow_pickle=False``; object and structured dtypes are
-refused) and read with `numpy.lib.format.read_array` (``allow_pickle=False``) after their
-header's size is checked against the bytes left. An array that occurs several times in a value is
+Arrays are written as .npy files (a `numpy.lib.format` header, then the array's own bytes, not
+copied: a stage's result can be gigabytes; object and structured dtypes are refused) and read as
+views of the payload after their header's size is checked against the bytes left (a writable
+payload, as `StageCache` reads it, gives writable arrays without a copy). An array that occurs several times in a value is
 written once and read back as one object. A dataclass is looked up by module and qualified name
 only in modules named ``sssbake.…``; it must be a dataclass defined there under that name, with
 exactly the stored fields; it is rebuilt as pickle does (no ``__init__``, no ``__post_init__``).
@@ -148,30 +149,46 @@ def dumps(value) -> list:
         where = "".join(reversed(e.path))
         raise TypeError(f"stage cache cannot store {e}{f' at {type(value).__qualname__}{where}' if where else ''}") from None
     text = json.dumps({"arrays": len(enc.arrays), "value": node}, allow_nan=False, separators=(",", ":")).encode()
-    blobs = io.BytesIO()
+    pieces = [len(text).to_bytes(_LENGTH, "little"), text]
     for a in enc.arrays:
-        np.save(blobs, a, allow_pickle=False)
-    return [len(text).to_bytes(_LENGTH, "little"), text, blobs.getbuffer()]
+        a = a if a.flags.c_contiguous else a.copy(order="C")  # (not ascontiguousarray: it makes 0-d 1-d)
+        header = io.BytesIO()
+        npy.write_array_header_2_0(header, npy.header_data_from_array_1_0(a))
+        pieces += [header.getvalue(), a.reshape(-1).view(np.uint8).data]
+    return pieces
 
 
 def _reject_constant(name: str):
     raise CacheFormatError(f"JSON constant {name}")  # our writer spells non-finite floats as {"f": ...}
 
 
-def _read_array(stream: io.BytesIO, end: int) -> np.ndarray:
-    start = stream.tell()
-    version = npy.read_magic(stream)
+class _Reader:
+    """`read(n)` over a buffer without copying what it does not return (numpy's header readers)."""
+
+    def __init__(self, buffer: memoryview):
+        self.buffer, self.pos = buffer, 0
+
+    def read(self, n: int) -> bytes:
+        out = bytes(self.buffer[self.pos:self.pos + n])
+        self.pos += len(out)
+        return out
+
+
+def _read_array(reader: _Reader) -> np.ndarray:
+    version = npy.read_magic(reader)
     if version == (1, 0):
-        shape, _, dtype = npy.read_array_header_1_0(stream)
+        shape, fortran, dtype = npy.read_array_header_1_0(reader)
     elif version == (2, 0):
-        shape, _, dtype = npy.read_array_header_2_0(stream)
+        shape, fortran, dtype = npy.read_array_header_2_0(reader)
     else:
         raise CacheFormatError(f".npy version {version}")
-    # read_array allocates the whole array before reading it: a header may not claim more than is there
-    if dtype.hasobject or math.prod(shape) * dtype.itemsize > end - stream.tell():
+    count = math.prod(shape)
+    # a header may not claim more data than is there
+    if dtype.hasobject or count * dtype.itemsize > len(reader.buffer) - reader.pos:
         raise CacheFormatError("array header claims more data than the entry holds")
-    stream.seek(start)
-    return npy.read_array(stream, allow_pickle=False)
+    a = np.frombuffer(reader.buffer, dtype, count, reader.pos).reshape(shape, order="F" if fortran else "C")
+    reader.pos += count * dtype.itemsize
+    return a
 
 
 class _Decoder:
@@ -232,16 +249,18 @@ def loads(payload) -> object:
         When the payload is not one `dumps` writes or names a class it will not build.
     """
     try:
-        stream = io.BytesIO(payload)
-        end = len(stream.getbuffer())
-        n = int.from_bytes(stream.read(_LENGTH), "little")
-        if n > end - _LENGTH:
+        view = memoryview(payload).cast("B")
+        if view.readonly:  # arrays of the cache are writable, as the stage made them
+            view = memoryview(bytearray(view))
+        reader = _Reader(view)
+        n = int.from_bytes(reader.read(_LENGTH), "little")
+        if n > len(view) - _LENGTH:
             raise CacheFormatError("JSON length past the end")
-        head = json.loads(stream.read(n), parse_constant=_reject_constant)
+        head = json.loads(reader.read(n), parse_constant=_reject_constant)
         if type(head) is not dict or head.keys() != {"arrays", "value"} or type(head["arrays"]) is not int:
             raise CacheFormatError("not a stage cache payload")
-        arrays = [_read_array(stream, end) for _ in range(head["arrays"])]
-        if stream.tell() != end:
+        arrays = [_read_array(reader) for _ in range(head["arrays"])]
+        if reader.pos != len(view):
             raise CacheFormatError("data after the last array")
         return _Decoder(arrays).node(head["value"])
     except CacheFormatError:

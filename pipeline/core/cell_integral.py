@@ -57,6 +57,11 @@ class Cumulative:
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
         """(...,) radii, mm -> (..., 3)."""
+        return np.moveaxis(self.channels(r), 0, -1)
+
+    def channels(self, r: np.ndarray) -> np.ndarray:
+        """(...,) radii, mm -> (3, ...): G channel-first, each channel contiguous (the quadrature
+        rules reduce over the last axis without an interleaved copy)."""
         u = (np.log(np.maximum(r, 1e-300)) - self.log_r0) * STEPS_PER_E
         # The nodes are evenly spaced in u: index them directly (np.interp would search), one
         # contiguous channel at a time.
@@ -65,7 +70,11 @@ class Cumulative:
         f = at - i
         # Below the table G ∝ r² (a disc of constant Rd(0)); above it G has reached R_d.
         below = np.minimum(u, 0.0) * (2.0 / STEPS_PER_E)
-        out = np.stack([g.take(i) + f * s.take(i) + below for g, s in zip(self.log_g, self.slope)], axis=-1)
+        out = np.empty((3,) + np.shape(r))
+        for c, (g, s) in enumerate(zip(self.log_g, self.slope)):
+            np.multiply(f, s.take(i), out=out[c])
+            out[c] += g.take(i)
+            out[c] += below
         return np.exp(out, out=out)
 
 
@@ -142,5 +151,5 @@ def apex_triangle(apex: np.ndarray, p: np.ndarray, q: np.ndarray, cumulative: "C
     to_foot = np.where(np.einsum("ij,ij->i", -e1, e2 - e1) >= 0.0, to_foot, -to_foot)
     phi = 0.5 * angle[:, None] * (x[None, :] + 1.0)  # (m, nodes) from e1 towards e2
     rho = foot[:, None] / np.maximum(np.cos(phi - to_foot[:, None]), 1e-12)
-    value[ok] = np.einsum("k,mkc->mc", weights, cumulative(rho)) * (0.5 * angle / (2.0 * np.pi))[:, None]
+    value[ok] = (cumulative.channels(rho) @ weights).T * (0.5 * angle / (2.0 * np.pi))[:, None]
     return value

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile, profile_derivatives
+from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile
 
 #: Table range in d/a; beyond it the expansion's fourth-order error is below ~3e-4.
 TABLE_REACH = 8.0
@@ -204,15 +204,39 @@ class DiscMean:
             out[point] = diffuse_reflectance_profile(d[point], self.params)
         rest = ~close & ~point
         if np.any(rest):
-            dr = d[rest]
-            # ½ tr(H Σ) for a disc of covariance (a²/4)(I - n nᵀ) with c = û·n = h/d:
-            # (a²/8) (Rd'' (1 - c²) + Rd'/d (1 + c²)); at d = 0 (duplicate vertices) Rd'/d -> Rd''.
-            c2 = np.divide(h[rest], dr, out=np.zeros(len(dr)), where=dr > 0) ** 2
-            for c in range(3):
-                f, f1, f2 = profile_derivatives(dr, self.params, c)
-                slope = np.divide(f1, dr, out=f2.copy(), where=dr > 0)
-                out[rest, c] = np.maximum(f + 0.125 * a[rest] ** 2 * (f2 * (1.0 - c2) + slope * (1.0 + c2)), 0.0)
+            out[rest] = _disc_expansion(d[rest], a[rest], h[rest], self.params)
         return out
+
+
+def _disc_expansion(r: np.ndarray, a: np.ndarray, h: np.ndarray, p: DipoleParams) -> np.ndarray:
+    """Rd(r) + ½ tr(H Σ) for discs of radius a (covariance (a²/4)(I - n nᵀ)) seen from `h` off
+    their plane, clipped at 0; (m,) each -> (m, 3).
+
+    With c = û·n = h/r, ½ tr(H Σ) = (a²/8) (Rd'' (1 - c²) + Rd'/r (1 + c²)). Per dipole term
+    z (D² = r² + z², P = σ_tr D) every piece is e^(-P)/D³ times a polynomial in P
+    (`dipole.profile_derivatives`), so the sum is
+
+        z e^(-P)/D³ [1 + P + (a²/8D²) ((1 - c²)(Q₃ r²/D² - Q₂ z²/D²) - (1 + c²) Q₂)]
+
+    with Q₂ = P² + 3P + 3, Q₃ = P³ + 5P² + 12P + 12: half the passes of evaluating Rd, Rd'
+    and Rd'' apart, and finite at r = 0 (duplicate vertices), where Rd'/r is Rd''.
+    """
+    r2 = r * r
+    c2 = np.divide(h * h, r2, out=np.zeros(len(r)), where=r > 0)
+    spread = 0.125 * a * a
+    out = np.empty((len(r), 3))
+    for c in range(3):
+        s, total = p.sigma_tr[c], np.zeros(len(r))
+        for z in (p.z_r[c], p.z_v[c]):
+            d2 = r2 + z * z
+            d = np.sqrt(d2)
+            big_p = s * d
+            q2 = big_p * (big_p + 3.0) + 3.0
+            q3 = big_p * (big_p * (big_p + 5.0) + 12.0) + 12.0
+            bracket = ((1.0 - c2) * (q3 * r2 - q2 * (z * z)) / d2 - (1.0 + c2) * q2) * (spread / d2) + (1.0 + big_p)
+            total += z * np.exp(-big_p) / (d2 * d) * bracket
+        out[:, c] = np.maximum(total * (p.alpha_prime[c] / (4.0 * np.pi)), 0.0)
+    return out
 
 
 def _polar_rule(rings: int, angles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

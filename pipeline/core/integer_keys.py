@@ -33,3 +33,30 @@ def argsort_keys(key: np.ndarray, bound: int) -> np.ndarray:
         order = np.argsort(digit, kind="stable") if order is None else order[np.argsort(digit[order], kind="stable")]
         shift += 16
     return order.astype(np.int64)
+
+
+def unique_keys(key: np.ndarray, bound: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(key, return_index=True, return_inverse=True)[1:]`` by `argsort_keys`.
+
+    Parameters
+    ----------
+    key : (m,) int
+        Values in [0, bound).
+    bound : int
+
+    Returns
+    -------
+    first : (u,) int64
+        Where each distinct key, in increasing order, first occurs.
+    inverse : (m,) int64
+        Each key's place among the distinct keys.
+    """
+    key = np.asarray(key, dtype=np.int64)
+    order = argsort_keys(key, bound)
+    ordered = key[order]
+    new = np.empty(len(key), dtype=bool)
+    new[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    inverse = np.empty(len(key), dtype=np.int64)
+    inverse[order] = np.cumsum(new) - 1
+    return order[new], inverse  # stable: the first of equal keys comes first

@@ -150,5 +150,8 @@ class NearField:
             dist = np.sqrt(np.einsum("ij,ij->i", ds, ds))
             h = np.abs(np.einsum("ij,ij->i", ds, self.sub_normal[sub[apart]]))
             value[apart] = self.disc(dist, np.sqrt(self.sub_area[sub[apart]] / np.pi), h) * self.sub_area[sub[apart], None]
-            out[pair] = np.stack([np.bincount(which, weights=value[:, c], minlength=len(pair)) for c in range(3)], axis=1)
+            # Sum each pair's run of sub-triangles (`which` ascends; pairs without any keep 0).
+            out[pair] = 0.0
+            has = np.flatnonzero(count)
+            out[pair[has]] = np.add.reduceat(value, (np.cumsum(count) - count)[has], axis=0)
         return out

@@ -18,6 +18,13 @@ xatlas is not scale invariant (its tolerances are absolute, in float32): it char
 mesh centred and scaled to a bounding-box diagonal of ``DIAGONAL`` (at extreme scales it failed, at
 diagonal 0.1 it split the bunny into thousands of charts; 100 is the fastest of 1, 10 and 100:
 benchmarks/README.md#xatlas-scale).
+
+xatlas' charting grows faster than the mesh (the 50k-vertex dragon 30 s, 150k 180 s), so a part
+of more than `PIECE_FACES` triangles is cut into pieces of about that many, runs of its triangles
+in Morton order of their centroids (compact in space), and each piece is charted as a mesh of its
+own; xatlas packs the charts of all pieces into one atlas. A piece's border is a chart border (a
+seam) as well: the 150k dragon got 5 % more charts, in 17 s instead of 180
+(benchmarks/README.md#xatlas-pieces).
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from sssbake.pipeline.core.errors import SssbakeError
+from sssbake.pipeline.core.morton import morton_codes
 
 # Jitter of the retry, as a fraction of the bounding-box diagonal (see the module docstring).
 JITTER = 1e-4
@@ -45,6 +53,9 @@ RESOLUTION = 512
 #: need whole 4x4 blocks. An exact ``resolution`` would take a second xatlas charting of the mesh
 #: (minutes on large ones: xatlas' own size is an estimate), so the atlas is padded instead.
 BLOCK = 4
+#: Triangles per piece xatlas charts on its own (see the module docstring; 4000 charted the 150k
+#: dragon in 17 s, 10000 in 24 s).
+PIECE_FACES = 4000
 
 
 class AtlasError(SssbakeError, ValueError):
@@ -106,6 +117,7 @@ def compute_atlas(
     padding: int = 4,
     *,
     timeout_s: float | None = None,
+    piece_faces: int = PIECE_FACES,
 ) -> Atlas:
     """Parametrise all parts of a mesh into one xatlas atlas.
 
@@ -120,6 +132,8 @@ def compute_atlas(
         Wall-clock limit of each xatlas attempt, seconds; None: none of its own (a batch bounds
         the whole bake of an asset, `asset_process`: xatlas takes minutes on the largest meshes,
         so a fixed limit here failed them before the asset's own: benchmarks/README.md#xatlas-scale).
+    piece_faces : int
+        Parts with more triangles are charted in pieces of about this many (module docstring).
 
     Returns
     -------
@@ -158,17 +172,20 @@ def compute_atlas(
     checked = [((positions - centre) * factor, faces) for positions, faces in checked]
     rng = np.random.default_rng(JITTER_SEED)
     jitters = [rng.uniform(-1.0, 1.0, p.shape) * (JITTER * DIAGONAL) for p, _ in checked]
+    pieces = [piece for i, (positions, faces) in enumerate(checked)
+              for piece in _pieces(i, positions, faces, piece_faces)]
 
     with tempfile.TemporaryDirectory(prefix="sssbake-atlas-") as tmp:
         out_path = Path(tmp) / "out.npz"
         signals = []
         for attempt, jittered in enumerate((False, True)):
             in_path = Path(tmp) / f"in{attempt}.npz"
-            arrays = {"n_parts": np.int64(len(checked)), "resolution": np.int64(resolution),
+            arrays = {"n_parts": np.int64(len(pieces)), "resolution": np.int64(resolution),
                       "padding": np.int64(padding)}
-            for i, ((positions, faces), jitter) in enumerate(zip(checked, jitters)):
-                arrays[f"positions_{i}"] = (positions + jitter if jittered else positions).astype(np.float32)
-                arrays[f"faces_{i}"] = faces
+            for j, piece in enumerate(pieces):
+                positions = checked[piece.part][0] + jitters[piece.part] if jittered else checked[piece.part][0]
+                arrays[f"positions_{j}"] = positions[piece.vertices].astype(np.float32)
+                arrays[f"faces_{j}"] = piece.faces
             np.savez(in_path, **arrays)
             try:
                 proc = subprocess.run(
@@ -181,7 +198,7 @@ def compute_atlas(
                     f"atlas: xatlas ran longer than {timeout_s:g} s; simplify the mesh first or raise its timeout_s"
                 ) from None
             if proc.returncode == 0:
-                return _read_result(out_path, len(checked), jittered)
+                return _read_result(out_path, [len(faces) for _, faces in checked], pieces, jittered)
             if proc.returncode > 0:
                 last = proc.stderr.strip().splitlines()[-1:] or ["no message"]
                 raise AtlasError(f"atlas: xatlas failed ({last[0]}); check the mesh for degenerate faces")
@@ -199,20 +216,59 @@ def _signal_name(number: int) -> str:
         return f"signal {number}"
 
 
-def _read_result(path: Path, n_parts: int, jittered: bool) -> Atlas:
+@dataclass(frozen=True, eq=False)
+class _Piece:
+    """Triangles of one part that xatlas charts as a mesh of its own.
+
+    Attributes
+    ----------
+    part : int
+    triangles : (m,) int64
+        The part's triangles in the piece, in the piece's order.
+    vertices : (k,) int64
+        The part's vertices the piece uses; `faces` index them.
+    faces : (m, 3) uint32
+    """
+
+    part: int
+    triangles: np.ndarray
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+def _pieces(part: int, positions: np.ndarray, faces: np.ndarray, piece_faces: int) -> list[_Piece]:
+    """Part `part` cut into runs of about `piece_faces` triangles in Morton order of their centroids
+    (the whole part when it has no more)."""
+    count = -(-len(faces) // max(piece_faces, 1))
+    if count <= 1:
+        return [_Piece(part, np.arange(len(faces)), np.arange(len(positions)), faces)]
+    centroids = positions[faces].mean(axis=1)
+    lo, span = centroids.min(axis=0), np.ptp(centroids, axis=0).max()
+    cells = np.floor((centroids - lo) / max(span, 1e-300) * (2**20 - 1)).astype(np.int64)
+    order = np.argsort(morton_codes(cells), kind="stable")
+    pieces = []
+    for triangles in np.array_split(order, count):
+        vertices, local = np.unique(faces[triangles], return_inverse=True)
+        pieces.append(_Piece(part, triangles, vertices, local.reshape(-1, 3).astype(np.uint32)))
+    return pieces
+
+
+def _read_result(path: Path, part_faces: list[int], pieces: list[_Piece], jittered: bool) -> Atlas:
+    """The worker's atlas of `pieces`, put together per part: each piece's atlas vertices follow
+    the previous pieces', its triangles go back to their places in the part."""
     with np.load(path) as data:
         width, height = int(data["width"]), int(data["height"])
         padded = np.array([-(-width // BLOCK) * BLOCK, -(-height // BLOCK) * BLOCK])
         # UVs are fractions of the atlas: scaled by old / new size, each texel keeps its place.
         shrink = np.array([width, height], dtype=np.float64) / padded
-        parts = tuple(
-            AtlasPart(
-                vmapping=data[f"vmapping_{i}"].astype(np.int64),
-                faces=data[f"faces_{i}"].astype(np.int64).reshape(-1, 3),
-                uvs=data[f"uvs_{i}"].astype(np.float64).reshape(-1, 2) * shrink,
-            )
-            for i in range(n_parts)
-        )
+        vmappings, uvs = [[] for _ in part_faces], [[] for _ in part_faces]
+        faces = [np.empty((m, 3), dtype=np.int64) for m in part_faces]
+        for j, piece in enumerate(pieces):
+            offset = sum(len(v) for v in vmappings[piece.part])
+            vmappings[piece.part].append(piece.vertices[data[f"vmapping_{j}"].astype(np.int64)])
+            uvs[piece.part].append(data[f"uvs_{j}"].astype(np.float64).reshape(-1, 2) * shrink)
+            faces[piece.part][piece.triangles] = data[f"faces_{j}"].astype(np.int64).reshape(-1, 3) + offset
+        parts = tuple(AtlasPart(np.concatenate(v), f, np.concatenate(u)) for v, f, u in zip(vmappings, faces, uvs))
         return Atlas(
             parts=parts,
             width=int(padded[0]),

@@ -154,7 +154,7 @@ def index_table(values: np.ndarray) -> np.ndarray:
     """Non-negative indices as uint16 when they fit (the exporters store uint16 as is), else int64
     (stored as uint32)."""
     values = np.asarray(values)
-    return values.astype(np.uint16 if values.size == 0 or values.max() < 65536 else np.int64)
+    return values.astype(np.uint16 if values.size == 0 or values.max() < 65536 else np.int64, copy=False)
 
 
 #: Components of every vertex attribute sssbake writes, all float32: Blender's glTF importer (4.5)

@@ -15,8 +15,8 @@ from scipy import ndimage
 
 from sssbake.pipeline.core.errors import SssbakeError
 
-# Upper bound on candidate texels tested at once; bounds peak memory to a few hundred MB.
-CHUNK = 4_000_000
+# Upper bound on candidate texels tested at once; bounds peak memory to ~100 MB.
+CHUNK = 1_000_000
 # Barycentric tolerance (texel units) so centres exactly on an edge are not lost to rounding.
 EDGE_TOLERANCE = 1e-9
 
@@ -125,8 +125,9 @@ def rasterize_atlas(
         raise TexelError("texels: uvs or positions contain NaN or Inf; clean the mesh first")
 
     # Texel centres sit at half-integer pixel coordinates: col c covers x = c + 0.5.
-    lo = np.ceil(tri_uv.min(axis=1) - 0.5).astype(np.int64)
-    hi = np.floor(tri_uv.max(axis=1) - 0.5).astype(np.int64)
+    # corner by corner: a reduction over the 3-long axis is four times slower on millions of triangles
+    lo = np.ceil(np.minimum(np.minimum(tri_uv[:, 0], tri_uv[:, 1]), tri_uv[:, 2]) - 0.5).astype(np.int64)
+    hi = np.floor(np.maximum(np.maximum(tri_uv[:, 0], tri_uv[:, 1]), tri_uv[:, 2]) - 0.5).astype(np.int64)
     lo = np.maximum(lo, 0)
     hi = np.minimum(hi, (width - 1, height - 1))
     extent = np.maximum(hi - lo + 1, 0)

@@ -63,6 +63,10 @@ class Technique:
     extra_outputs(options) -> dict of str to callable
         Extra files of a bake, ``{name: make}``: ``<stem>.<name>.glb`` is written from
         ``make(BakedAsset) -> BakedAsset`` (default none).
+    stage_options(options) -> options
+        `options` with the fields its `bake` does not read under them set to their defaults: what
+        the stage cache keys its bake on, so that changing such a field reruns nothing (default:
+        `options` as they are).
 
     Verify and runtime hooks (``<Cls>Verify`` in ``verify.py``)
     ------------------------------------------------------------
@@ -133,6 +137,9 @@ class Technique:
 
     def extra_outputs(self, options) -> dict[str, Callable[[BakedAsset], BakedAsset]]:
         return {}
+
+    def stage_options(self, options):
+        return options
 
     def reference_item(self, path, unit: VerifyUnit, data: dict, runtime: dict, memo: dict) -> None:
         return None

@@ -51,3 +51,10 @@ def test_plane_cells_and_flat_triangles():
     line = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
     assert np.all(apex_triangle(line[:1], line[1:2], line[2:], Cumulative.build(P)) == 0.0)
     assert np.all(cell_integral(np.vstack([verts, [[9.0, 9.0, 0.0]]]), faces, P)[-1] == 0.0)
+
+
+
+def test_channels_are_the_call_channel_first():
+    r = np.random.default_rng(2).random((7, 5)) * 4.0
+    table = Cumulative.build(P)
+    np.testing.assert_array_equal(table.channels(r), np.moveaxis(table(r), -1, 0))

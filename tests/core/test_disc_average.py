@@ -79,3 +79,23 @@ def test_table_matches_exact_mean(name):
         assert np.all(np.isfinite(got)) and np.all(got > 0)
         assert np.median(np.abs(got / exact[:, c] - 1)) < 2e-4
         assert np.abs(got / exact[:, c] - 1).max() < 3e-3  # worst where the edge passes the receiver
+
+
+def test_expansion_matches_its_derivative_form():
+    # `_disc_expansion` sums e^(-P)/D³ polynomials; it must equal Rd + (a²/8)(Rd''(1 - c²) +
+    # Rd'/r (1 + c²)) from `profile_derivatives`, Rd'/r -> Rd'' at r = 0, clipped at 0.
+    from sssbake.pipeline.core.dipole import profile_derivatives
+    from sssbake.pipeline.core.disc_average import _disc_expansion
+
+    rng = np.random.default_rng(5)
+    r = np.r_[0.0, 1e-3, rng.random(2000) * 40.0]
+    a = rng.random(len(r)) * 3.0
+    h = np.minimum(rng.random(len(r)) * 5.0, r)
+    c2 = np.divide(h, r, out=np.zeros(len(r)), where=r > 0) ** 2
+    expected = np.empty((len(r), 3))
+    for c in range(3):
+        f, f1, f2 = profile_derivatives(r, P, c)
+        slope = np.divide(f1, r, out=f2.copy(), where=r > 0)
+        expected[:, c] = np.maximum(f + 0.125 * a**2 * (f2 * (1.0 - c2) + slope * (1.0 + c2)), 0.0)
+    got = _disc_expansion(r, a, h, P)
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12 * expected.max())

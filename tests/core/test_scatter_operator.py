@@ -161,3 +161,25 @@ def test_far_kernel_table_interpolates_to_its_bound():
             exact = profile_derivatives(d[inside], p, c)[0]
             got = table.value[c, 0, node[inside]] + w[inside] * table.slope[c, 0, node[inside]]
             assert np.abs(got / exact - 1).max() < 1e-5, name
+
+
+def test_chunked_assembly_gives_the_same_matrices(monkeypatch):
+    # The build computes entries in chunks of rows (ENTRIES_PER_CHUNK bounds its memory): small
+    # chunks must give exactly the matrices of one chunk, and a float32 `out` (the precompute's
+    # q) the float32 products themselves.
+    from sssbake.pipeline.core import scatter_operator as module
+
+    x, f, _, normals = sphere(25.0)
+    p = DipoleParams.from_material(preset("marble"))
+    options = ScatterOptions(threads=2)
+    monkeypatch.setattr(module, "ENTRIES_PER_CHUNK", 10**9)
+    whole = scatter_operator(x, f, normals, p, options)
+    monkeypatch.setattr(module, "ENTRIES_PER_CHUNK", 997)
+    chunked = scatter_operator(x, f, normals, p, options)
+    for a, b in zip([whole.near] + [level.matrix for level in whole.levels],
+                    [chunked.near] + [level.matrix for level in chunked.levels]):
+        for name in ("data", "indices", "indptr"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    signal = lit(normals, k=9)
+    q32 = chunked.apply(signal, out=np.empty((3, len(x), 9), dtype=np.float32))
+    np.testing.assert_array_equal(q32, chunked.apply(signal).astype(np.float32))

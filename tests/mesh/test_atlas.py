@@ -119,3 +119,37 @@ def test_worker_error_is_reported(parts, monkeypatch):
     monkeypatch.setenv(CRASH_ENV, "not-a-number")
     with pytest.raises(AtlasError, match=r"atlas: xatlas failed \(ValueError"):
         compute_atlas(parts[:1], resolution=64, padding=2)
+
+
+def _covered_twice(part, width: int, height: int, samples: int = 4) -> int:
+    """Sample points (`samples`² per texel) that lie strictly inside two or more UV triangles."""
+    count = np.zeros((height * samples, width * samples), dtype=np.int32)
+    corners = part.uvs[part.faces] * [width * samples, height * samples]  # (m, 3, 2) in sample units
+    for tri in corners:
+        (x0, y0), (x1, y1) = np.floor(tri.min(axis=0)).astype(int), np.ceil(tri.max(axis=0)).astype(int)
+        xs, ys = np.meshgrid(np.arange(x0, x1) + 0.5, np.arange(y0, y1) + 0.5)
+        a, b, c = tri
+        d = [(q[0] - p[0]) * (ys - p[1]) - (q[1] - p[1]) * (xs - p[0]) for p, q in ((a, b), (b, c), (c, a))]
+        inside = ((d[0] > 1e-9) & (d[1] > 1e-9) & (d[2] > 1e-9)) | ((d[0] < -1e-9) & (d[1] < -1e-9) & (d[2] < -1e-9))
+        count[y0:y1, x0:x1] += inside
+    return int((count > 1).sum())
+
+
+def test_a_large_part_is_charted_in_pieces_into_one_atlas():
+    sphere = trimesh.creation.icosphere(4)  # 5120 triangles: six pieces of at most 1000
+    positions, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces, dtype=np.int64)
+    whole = compute_atlas([(positions, faces)], resolution=256, padding=2)
+    cut = compute_atlas([(positions, faces)], resolution=256, padding=2, piece_faces=1000)
+    part = cut.parts[0]
+    # the same triangles in the same order, on vertices that copy the input's
+    np.testing.assert_array_equal(part.vmapping[part.faces], faces)
+    assert part.uvs.min() >= 0.0 and part.uvs.max() <= 1.0
+    # a piece's border is a seam: more atlas vertices and at least one chart per piece
+    assert cut.chart_count >= 6 and len(part.vmapping) > len(whole.parts[0].vmapping)
+    # every triangle keeps its area in the atlas (no collapsed chart) and no two charts overlap
+    uv = part.uvs[part.faces] * [cut.width, cut.height]
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    assert area.min() > 0.0
+    assert _covered_twice(part, cut.width, cut.height) == 0 and _covered_twice(whole.parts[0], whole.width,
+                                                                               whole.height) == 0

@@ -23,6 +23,8 @@ from sssbake.pipeline.mesh.texels import rasterize_atlas
 
 #: Rings of triangles unfolded at most (a ring of sub-texel triangles gains little distance).
 MAX_RINGS = 24
+#: Unfolded triangles rasterised at once (bounds the rasteriser's per-corner copies to ~100 MB).
+BATCH = 1 << 18
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,16 +83,26 @@ def border_texels(layout: AtlasSurface, surface: Surface, covered_pixels: np.nda
     tri_chart, tri_faces, uvs = _unfold(layout, surface, reach)
     if not len(tri_faces):
         return _empty()
-    faces = surface.faces[tri_faces]
 
     def accept(pixels: np.ndarray, tri: np.ndarray) -> np.ndarray:
         return ~covered[pixels] & (distance[pixels] <= reach) & (owner[pixels] == tri_chart[tri])
 
-    flat = np.arange(3 * len(faces)).reshape(-1, 3)
-    samples = rasterize_atlas([(uvs.reshape(-1, 2) / (w, h), flat, surface.positions[faces].reshape(-1, 3),
-                                surface.normals[faces].reshape(-1, 3))], w, h, accept)
-    return BorderTexels(samples.rows * w + samples.cols, tri_faces[samples.face], samples.barycentric,
-                        tri_chart[samples.face], samples.areas, len(faces))
+    # In batches of triangles (a 150k-vertex mesh unfolds millions, and the rasteriser's per-corner
+    # copies of them took 2.5 GB at once); each batch keeps the first of its triangles over a texel,
+    # and the batches, in triangle order, the first batch's: as one rasterisation of all would.
+    def batch(lo: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        faces = surface.faces[tri_faces[lo: lo + BATCH]]
+        flat = np.arange(3 * len(faces)).reshape(-1, 3)
+        samples = rasterize_atlas([(uvs[lo: lo + BATCH].reshape(-1, 2) / (w, h), flat,
+                                    surface.positions[faces].reshape(-1, 3), surface.normals[faces].reshape(-1, 3))],
+                                  w, h, lambda pixels, tri: accept(pixels, tri + lo))
+        return samples.rows * w + samples.cols, samples.face + lo, samples.barycentric, samples.areas
+
+    pixel, face, bary, area = zip(*map(batch, range(0, len(tri_faces), BATCH)))
+    pixel, first = np.unique(np.concatenate(pixel), return_index=True)
+    face = np.concatenate(face)[first]
+    return BorderTexels(pixel, tri_faces[face], np.concatenate(bary)[first], tri_chart[face],
+                        np.concatenate(area)[first], len(tri_faces))
 
 
 def _empty() -> BorderTexels:

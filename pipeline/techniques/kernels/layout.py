@@ -127,20 +127,21 @@ def kernels_vertex_attributes(data: KernelsData, vertices: np.ndarray) -> tuple[
 
 def _plain_tables(data: KernelsData) -> dict[str, np.ndarray]:
     """Every table but the kernel codes and scales, as stored, empty ones included."""
+    # copy=False: F's values (the largest table, already float32) are not copied
     return {
         "texels": data.texels.astype(np.uint32),
         "texelVertices": index_table(data.texel_vertices),
-        "texelDual": data.texel_dual.astype(np.float32),
+        "texelDual": data.texel_dual.astype(np.float32, copy=False),
         # Row s·3 + a, column c: glTF MAT3 would mean column-major and padded columns.
-        "texelDirect": data.texel_direct.astype(np.float32).reshape(-1, 3),
+        "texelDirect": data.texel_direct.astype(np.float32, copy=False).reshape(-1, 3),
         "fIndptr": data.f_indptr.astype(np.uint32),
         "fIndices": index_table(data.f_indices),
-        "fValues": data.f_values.astype(np.float32),
+        "fValues": data.f_values.astype(np.float32, copy=False),
         "borderTexels": data.border_texels.astype(np.uint32),
         "borderVertices": index_table(data.border_vertices),
-        "borderBarycentric": data.border_barycentric.astype(np.float32),
+        "borderBarycentric": data.border_barycentric.astype(np.float32, copy=False),
         "surfaceGlobal": index_table(data.surface_global),
-        "surfaceWeights": data.surface_weights.astype(np.float32),
+        "surfaceWeights": data.surface_weights.astype(np.float32, copy=False),
     }
 
 

@@ -42,7 +42,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sssbake.pipeline.core.dipole import DipoleParams, disc_integral
-from sssbake.pipeline.core.integer_keys import argsort_keys
+from sssbake.pipeline.core.integer_keys import argsort_keys, unique_keys
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.profile_table import ProfileTable
 from sssbake.pipeline.core.surface import Surface, area_weighted_normals, triangle_areas, vertex_areas
@@ -228,7 +228,10 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     grid = _Grid(index_image, rows, cols, label, width, height)
     local = ProfileTable.build(params, (k + 2) * float(np.sqrt(area.max())) * 2.0)
     n = len(g_pos)
-    f_keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(throughput.indptr)) * n + throughput.indices
+    # int32 when n² fits (the default global mesh): half the memory and the bytes each search reads
+    key_type = np.int32 if n * n < 2**31 else np.int64
+    f_keys = np.repeat(np.arange(n, dtype=key_type), np.diff(throughput.indptr)) * key_type(n)
+    f_keys += throughput.indices.astype(key_type)
     ctx = _Context(x, faces, g_faces, area, corners, bary, real_of, dual, throughput, f_keys, n, local, params)
     # the dropped diagonal F_αα, handed out through the direct term instead
     w0 = dual[:, :, None] * throughput.field.own[corners[:s_count]]
@@ -324,7 +327,7 @@ class _Context:
     real_of: np.ndarray     # (T,) covered texel at the same surface point
     dual: np.ndarray        # (S, 3)
     throughput: Throughput  # F as stored
-    f_keys: np.ndarray      # (nnz,) row · n + column, increasing
+    f_keys: np.ndarray      # (nnz,) row · n + column, increasing (int32 when n² fits)
     vertex_count: int
     local: ProfileTable     # finer table for texel pairs
     params: DipoleParams
@@ -343,15 +346,19 @@ class _Context:
         texel sources: F' once per distinct (source face, receiver face), mixed with the dual
         weights once per distinct (source, receiver face)."""
         faces = len(self.face_corners)
-        _, first, per_pair = np.unique(source * faces + self.face[receiver], return_index=True, return_inverse=True)
+        if not len(source):
+            return np.zeros((0, 3))
+        # a chunk's sources are a narrow range: keys from its lowest keep the radix sort short
+        lo = int(source.min())
+        first, per_pair = unique_keys((source - lo) * faces + self.face[receiver], (int(source.max()) - lo + 1) * faces)
         src, rface = source[first], self.face[receiver[first]]
-        _, first_block, per_source = np.unique(self.face[src] * faces + rface, return_index=True, return_inverse=True)
+        first_block, per_source = unique_keys(self.face[src] * faces + rface, faces * faces)
         a, b = np.divmod(np.arange(9), 3)
         cs = self.face_corners[self.face[src[first_block]]]
         cr = self.face_corners[rface[first_block]]
         block = self.entries(cs[:, a].reshape(-1), cr[:, b].reshape(-1)).reshape(len(first_block), 3, 3, 3)
-        mixed = np.einsum("va,vabc->vbc", self.dual[src], block[per_source.reshape(-1)])
-        return np.einsum("pb,pbc->pc", self.bary[receiver], mixed[per_pair.reshape(-1)])
+        mixed = np.einsum("va,vabc->vbc", self.dual[src], block[per_source])
+        return np.einsum("pb,pbc->pc", self.bary[receiver], mixed[per_pair])
 
     def entries(self, sources: np.ndarray, receivers: np.ndarray) -> np.ndarray:
         """(m, 3) the stored F entries (0 where F has none), found in its sorted (row, column) keys."""
@@ -365,7 +372,8 @@ class _Context:
         ordered = key[order]
         new = np.r_[True, ordered[1:] != ordered[:-1]]
         distinct = ordered[new]
-        at = np.minimum(np.searchsorted(self.f_keys, distinct), len(self.f_keys) - 1)
+        # needles of F's key type: a wider type would have numpy cast all of F's keys per call
+        at = np.minimum(np.searchsorted(self.f_keys, distinct.astype(self.f_keys.dtype)), len(self.f_keys) - 1)
         value = np.where((self.f_keys[at] == distinct)[:, None], self.throughput.values[at], 0.0)
         out[order] = value[np.cumsum(new) - 1]
         return out
@@ -406,12 +414,18 @@ def _blend(ctx: _Context, grid: _Grid, s_count: int, r: int, w0: np.ndarray, ble
         local = sources - start
         truth = ctx.transport(receivers, sources)
         stats = np.zeros((4, 3))
-        if correct:
+        if blend == "optimised":
+            # the ring's global part with the window's: the pairs share most (source, face) blocks
+            ring_sources, _, ring = grid.pairs(centres, ring_dy, ring_dx)
+            both = ctx.global_part(np.r_[receivers, ring], np.r_[sources, ring_sources])
+            smooth, ring_smooth = both[:len(receivers)], both[len(receivers):]
+        elif correct:
             smooth = ctx.global_part(receivers, sources)
+        if correct:
             hats = ctx.shared(receivers, sources)
         if blend == "optimised":
-            weights, stats = _fit_chunk(ctx, grid, centres, ring_dy, ring_dx, w0[centres], ridge,
-                                        truth - smooth, hats, local, receivers, cell)
+            weights, stats = _fit_chunk(ctx, centres, w0[centres], ridge, truth - smooth, hats, local, receivers, cell,
+                                        ring_sources, ring, ring_smooth)
         else:
             weights = w0[centres] if blend == "fixed" else np.zeros((m, 3, 3))
         value = truth
@@ -454,23 +468,22 @@ def _blend(ctx: _Context, grid: _Grid, s_count: int, r: int, w0: np.ndarray, ble
     return out, direct, misfit
 
 
-def _fit_chunk(ctx: _Context, grid: _Grid, centres: np.ndarray, ring_dy, ring_dx, w0: np.ndarray, ridge: float,
-               excess: np.ndarray, hats: np.ndarray, local: np.ndarray, receivers: np.ndarray,
-               cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _fit_chunk(ctx: _Context, centres: np.ndarray, w0: np.ndarray, ridge: float, excess: np.ndarray,
+               hats: np.ndarray, local: np.ndarray, receivers: np.ndarray, cell: np.ndarray, ring_sources: np.ndarray,
+               ring: np.ndarray, ring_smooth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Blending weights of the sources `centres` (m,) and their misfit sums.
 
-    `excess` (T - global part), `hats` and `local` are the window pairs' of these sources.
-    Returns weights (m, 3, 3) and stats (4, 3): row 0 the count of sources constrained (then
+    `excess` (T - global part), `hats` and `local` are the window pairs' of these sources;
+    `ring_sources`, `ring` (r,) the pairs on their rings and `ring_smooth` (r, 3) the global part
+    there. Returns weights (m, 3, 3) and stats (4, 3): row 0 the count of sources constrained (then
     zeros), per channel the ring's squared misfit of the global part alone (row 1), |T|² (row 2)
     and the squared misfit after the fit (row 3).
     """
     m = len(centres)
-    start = centres[0]
-    sources, _, ring = grid.pairs(centres, ring_dy, ring_dx)
-    ring_local = sources - start
-    truth = ctx.transport(ring, sources)
-    target = truth - ctx.global_part(ring, sources)
-    design = ctx.shared(ring, sources)
+    ring_local = ring_sources - centres[0]
+    truth = ctx.transport(ring, ring_sources)
+    target = truth - ring_smooth
+    design = ctx.shared(ring, ring_sources)
     normal = np.stack([np.bincount(ring_local, weights=design[:, a] * design[:, b], minlength=m)
                        for a in range(3) for b in range(3)], axis=1).reshape(m, 3, 3)
     rhs = np.stack([np.bincount(ring_local, weights=design[:, a] * target[:, c], minlength=m)

@@ -93,3 +93,7 @@ class LpvStage:
 
     def vertex_attributes(self, result: TechniqueBake, welded: np.ndarray) -> tuple[VertexAttribute, ...]:
         return ()
+
+    def stage_options(self, options: LpvOptions) -> LpvOptions:
+        # a homogeneous medium has no veins
+        return options if options.field == "marble" else replace(options, vein_mm=LpvOptions().vein_mm)

@@ -169,8 +169,9 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
 
     Parameters
     ----------
-    q : (3, n, K) float64
-        Scattering integrals at the surface vertices for the directions of `directions`.
+    q : (3, n, K) float64 or float32
+        Scattering integrals at the surface vertices for the directions of `directions`
+        (fastest as a view of vertex-major memory, as `precompute_prt` gives).
     directions : DirectionSet
     positions : (n, 3) float64
     faces : (m, 3) int64
@@ -184,7 +185,9 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
     PrtData
     """
     check_compress_options(options)
-    q = np.asarray(q, dtype=np.float64)
+    q = np.asarray(q)
+    if q.dtype != np.float32:  # float32 q (`precompute_prt`'s, exact) is read in float64 pieces, not copied
+        q = q.astype(np.float64, copy=False)
     positions = np.asarray(positions, dtype=np.float64)
     n = len(positions)
     k = len(directions.directions)
@@ -229,7 +232,7 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
                 refs = refine_reference_points(positions, refs, q, count)
             ref_vertices, ref_triangles, vertex_triangle = refs.ref_vertices, refs.triangles, refs.vertex_triangle
             weights = refs.weights
-        at_refs = q[:, ref_vertices]
+        at_refs = q[:, ref_vertices].astype(np.float64)
         if options.mode == "refs+sh" and options.tables == "shared":
             ref_codes, lut, ref_scale = shared_tables(at_refs)
         else:

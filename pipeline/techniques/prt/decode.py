@@ -11,22 +11,26 @@ from sssbake.pipeline.mesh.baked import index_table
 from sssbake.pipeline.techniques.prt.data import PrtData
 
 
-def decode_at_directions(prt: PrtData) -> np.ndarray:
+def decode_at_directions(prt: PrtData, vertices: slice = slice(None)) -> np.ndarray:
     """q as the runtime reconstructs it at the set's own directions.
 
     Parameters
     ----------
     prt : PrtData
+    vertices : slice
+        The surface vertices to decode (all by default; a range bounds the output's memory).
 
     Returns
     -------
-    (3, n, K) float64
+    (3, m, K) float64
+        For the m vertices of `vertices`.
     """
-    n, k = prt.vertex_count, len(prt.directions)
+    vertex_triangle = prt.vertex_triangle[vertices]
+    n, k = len(vertex_triangle), len(prt.directions)
     out = np.zeros((3, n, k))
     if len(prt.ref_codes):
-        w = decode_weights(prt.weight_codes, prt.weight_scale, prt.weight_bits)
-        corners = prt.ref_triangles[prt.vertex_triangle]
+        w = decode_weights(prt.weight_codes[vertices], prt.weight_scale, prt.weight_bits)
+        corners = prt.ref_triangles[vertex_triangle]
         tables = reference_tables(prt.ref_codes, prt.lut, prt.ref_scale)
         if prt.detail_order:
             tables += reference_detail(prt.detail_codes, prt.detail_colour, prt.detail_scale, prt.detail_order,
@@ -35,7 +39,7 @@ def decode_at_directions(prt: PrtData) -> np.ndarray:
             out[c] = blend(w, tables[c], corners)
     if prt.sh_order:
         basis = sh_basis(prt.directions.astype(np.float64), prt.sh_order)  # (K, C)
-        out += np.einsum("nci,ki->cnk", decode_int8(prt.dq_codes, prt.dq_scale), basis)
+        out += np.einsum("nci,ki->cnk", decode_int8(prt.dq_codes[vertices], prt.dq_scale), basis)
     return out
 
 

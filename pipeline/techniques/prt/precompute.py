@@ -44,8 +44,11 @@ PRT_PRECOMPUTE_DEFAULTS = PrtPrecomputeOptions()
 class PrtIntegrals:
     """Attributes
     ----------
-    q : (3, n, K) float64
-        Radiance per unit irradiance (1/sr) per channel, surface vertex and direction.
+    q : (3, n, K) float32 or float64
+        Radiance per unit irradiance (1/sr) per channel, surface vertex and direction, in the
+        gather's dtype (`ScatterOptions.float32`): its products round to float32 already, so a
+        float32 q is exact and half the stage's largest array (0.5 GB at 200k vertices, K = 200).
+        A view of a vertex-major (n, 3, K) array.
     directions : (K, 3) float64
     radius_mm : (3,) float64
         Gather radius per channel.
@@ -103,7 +106,9 @@ def precompute_prt(surface: Surface, mm_per_unit: float, material: Material, dir
                                     options.scatter)
     seconds["operator"] = time.perf_counter() - t
     t = time.perf_counter()
-    q = np.empty((3, len(surface.positions), len(directions)))
+    # Vertex-major memory under the (3, n, K) view: the compression reads q a vertex (3·K
+    # values) at a time, gathered rows then copy whole contiguous runs.
+    q = np.empty((len(surface.positions), 3, len(directions)), dtype=operator.near.dtype).transpose(1, 0, 2)
     for s in range(0, len(directions), options.chunk):
         block = slice(s, s + options.chunk)
         signal = irradiance_signal(surface.normals, directions[block], visible[:, block], material.eta)

@@ -24,7 +24,7 @@ REFINE_ROUNDS = 4
 #: Defaults of the weight fits: ridge towards the prior weights relative to the normal matrix's
 #: mean diagonal, and the clip of w_0, w_1 (see `least_squares_weights`).
 REGULARISATION, LIMIT = 1e-3, 4.0
-#: Signal values gathered at once for a weight fit's inner products (rows × K, ~32 MB a copy).
+#: Signal values gathered at once for a weight fit's inner products (rows × 3 × K, 32 MB a copy).
 FIT_ELEMENTS = 1 << 22
 
 
@@ -403,12 +403,20 @@ def _split_worst(positions: np.ndarray, refs: ReferencePoints, misfit: np.ndarra
 
 
 def _check_signals(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints) -> tuple[np.ndarray, np.ndarray]:
-    q, q_ref = np.asarray(q, dtype=np.float64), np.asarray(q_ref, dtype=np.float64)
+    """q as given when float32 (`_dots` reads it in float64 chunks; a float64 copy would double
+    the stage's largest array), else as float64; q_ref as float64."""
+    q, q_ref = _signal(q), np.asarray(q_ref, dtype=np.float64)
     n, r = len(refs.vertex_triangle), len(refs.ref_vertices)
     if q.ndim != 3 or q.shape[:2] != (3, n) or q_ref.shape != (3, r, q.shape[2]):
         raise ValueError(f"reference points: q must be (3, {n}, K) and q_ref (3, {r}, K), "
                          f"got {q.shape} and {q_ref.shape}")
     return q, q_ref
+
+
+def _signal(q: np.ndarray) -> np.ndarray:
+    """q unchanged when float32 or float64, else as float64."""
+    q = np.asarray(q)
+    return q if q.dtype in (np.float32, np.float64) else q.astype(np.float64)
 
 
 def _is_reference(refs: ReferencePoints) -> np.ndarray:
@@ -430,15 +438,17 @@ def _fit(q: np.ndarray, q_ref: np.ndarray, vertices: np.ndarray, triangles: np.n
     Returns (m, 2) weights and (m,) misfit Σ_c Σ_j residual² (unregularised).
     """
     m, r = len(vertices), q_ref.shape[1]
+    rows_q = _vertex_rows(q)
+    rows_ref = np.ascontiguousarray(_vertex_rows(q_ref), dtype=np.float64)
     corners = triangles[which]
     pair, back = np.unique((vertices[:, None].astype(np.int64) * r + corners).ravel(), return_inverse=True)
-    qr = _dots(q, pair // r, q_ref, pair % r)[back.ravel()].reshape(m, 3)  # ⟨q_v, r_k⟩
+    qr = _dots(rows_q, pair // r, rows_ref, pair % r)[back.ravel()].reshape(m, 3)  # ⟨q_v, r_k⟩
     tri, tri_back = np.unique(which, return_inverse=True)
     t = triangles[tri]
-    r00, r01, r02, r11, r12, r22 = (_dots(q_ref, t[:, k], q_ref, t[:, l])[tri_back.ravel()]
+    r00, r01, r02, r11, r12, r22 = (_dots(rows_ref, t[:, k], rows_ref, t[:, l])[tri_back.ravel()]
                                     for k, l in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
     vert, vert_back = np.unique(vertices, return_inverse=True)
-    qq = _dots(q, vert, q, vert)[vert_back.ravel()]
+    qq = _dots(rows_q, vert, rows_q, vert)[vert_back.ravel()]
     # With a_k = r_k - r_2 and target q - r_2: g = ⟨a_k, a_l⟩, b = ⟨a_k, target⟩, rest = |target|².
     g = np.empty((m, 2, 2))
     g[:, 0, 0] = r00 - 2.0 * r02 + r22
@@ -458,10 +468,23 @@ def _fit(q: np.ndarray, q_ref: np.ndarray, vertices: np.ndarray, triangles: np.n
     return np.where(better[:, None], w01, prior), np.where(better, fitted, fallback)
 
 
+def _vertex_rows(q: np.ndarray) -> np.ndarray:
+    """(n, 3, K) view of a (3, n, K) signal: a C-contiguous one when q is a view of vertex-major
+    memory (`precompute_prt`'s q), whose rows `_dots` then gathers as single runs."""
+    return np.moveaxis(q, 0, 1)
+
+
 def _dots(a: np.ndarray, i: np.ndarray, b: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """(len(i),) Σ_c Σ_k a[c, i, k] b[c, j, k], in chunks of rows (bounds the gathered copies)."""
+    """(len(i),) Σ_c Σ_k a[i, c, k] b[j, c, k] in float64, for (n, 3, K) rows (`_vertex_rows`) of
+    float32 or float64, in chunks of rows (bounds the gathered copies).
+
+    Float32 inputs are upcast per chunk: their products are exact in float64, so the sums are
+    the float64 sums of the same values (the normal equations cancel heavily: `_fit`'s misfit).
+    """
     out = np.empty(len(i))
-    rows = max(1, FIT_ELEMENTS // a.shape[2])
+    rows = max(1, FIT_ELEMENTS // (a.shape[1] * a.shape[2]))
     for s in range(0, len(i), rows):
-        out[s:s + rows] = np.einsum("cij,cij->i", a[:, i[s:s + rows]], b[:, j[s:s + rows]])
+        x = a[i[s:s + rows]].astype(np.float64, copy=False)
+        y = b[j[s:s + rows]].astype(np.float64, copy=False)
+        out[s:s + rows] = np.einsum("ick,ick->i", x, y)
     return out

@@ -14,7 +14,7 @@ _D = SPECTRAL_DEFAULTS
 class SpectralOptions:
     """Attributes
     ----------
-    eigenpairs, width_mm, alpha, radius_mm
+    eigenpairs, width_mm
         The precompute (`precompute.SpectralPrecomputeOptions`).
     variant : bool
         Also write ``<stem>.sss_normals.glb``, whose standard NORMAL is the spectral subsurface
@@ -27,16 +27,13 @@ class SpectralOptions:
     eigenpairs: int = option(_D.eigenpairs, "spectral: harmonics the normals are filtered in (default {default})")
     width_mm: float | None = option(_D.width_mm, "spectral: the filter's spatial standard deviation "
                                                  "(default: from the material)")
-    alpha: float = option(_D.alpha, "spectral: naive normals' weight of a vertex's own normal (default {default})")
-    radius_mm: float | None = option(_D.radius_mm, "spectral: naive normals' neighbourhood radius "
-                                                   "(default: from the material)")
     variant: bool = option(False, "spectral: also write STEM.sss_normals.glb, its NORMAL the spectral normal "
                                   "(for stock viewers)", flag=True)
     basis: bool = option(False, "spectral: also export the spectrum (coefficients, eigenvalues, residual, basis) to "
                                 "filter again at runtime", flag=True)
 
     def precompute(self) -> SpectralPrecomputeOptions:
-        return SpectralPrecomputeOptions(self.eigenpairs, self.width_mm, self.alpha, self.radius_mm)
+        return SpectralPrecomputeOptions(self.eigenpairs, self.width_mm)
 
     def check(self) -> None:
         """Raise ValueError with a one-line reason for an impossible setting."""

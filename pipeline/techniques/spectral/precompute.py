@@ -1,6 +1,7 @@
-"""The spectral technique's precompute (Patro 2007): subsurface normals by neighbour weighting
-(`naive_normals`) and by low-pass filtering in the manifold harmonics basis (`spectral_normals`),
-with every length from the material at the asset's scale.
+"""The spectral technique's precompute (Patro 2007): subsurface normals by low-pass filtering in
+the manifold harmonics basis (`spectral_normals`), with every length from the material at the
+asset's scale. Patro's naive normals (neighbour weighting, `naive_normals`) are the comparison
+verify and tradeoff draw: their parameters are here, the bake does not compute them.
 
 One normal field serves all three colour channels, so the channels' scattering lengths are
 combined, each weighted by its share of the total diffuse reflectance R_d (what it contributes
@@ -10,7 +11,7 @@ to the picture):
   s sqrt(2 ln 2); s is set so that this median radius is the dipole's (the radius r₅₀ where the
   disc integral reaches R_d / 2, finite even without absorption, unlike the second moment);
 - naive σ_tr: the channels' σ_tr; naive radius: where the disc integral reaches `NAIVE_ENERGY`
-  of R_d (an energy bound, so σ_tr → 0 still gives a finite neighbourhood).
+  of R_d (an energy bound, so σ_tr → 0 still gives a finite neighbourhood); naive α: `NAIVE_ALPHA`.
 """
 
 from __future__ import annotations
@@ -22,7 +23,6 @@ import numpy as np
 
 from sssbake.pipeline.core.dipole import DipoleParams, radius_holding, total_diffuse_reflectance
 from sssbake.pipeline.core.materials import Material
-from sssbake.pipeline.core.naive_normals import naive_normals
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.techniques.spectral.laplacian import cotangent_laplacian
 from sssbake.pipeline.techniques.spectral.manifold_harmonics import manifold_harmonics
@@ -30,6 +30,8 @@ from sssbake.pipeline.techniques.spectral.normals import NormalSpectrum, normal_
 
 #: Share of R_d within the naive neighbourhood's radius.
 NAIVE_ENERGY = 0.95
+#: Naive normals: the weight of a vertex's own normal (Patro: below 1).
+NAIVE_ALPHA = 0.5
 
 
 @dataclass(frozen=True)
@@ -40,26 +42,17 @@ class SpectralPrecomputeOptions:
         m, the harmonics the normals are filtered in (fewer on smaller meshes).
     width_mm : float or None
         The filter's spatial standard deviation s; None: from the material (module docstring).
-    alpha : float
-        Naive normals: the weight of a vertex's own normal (Patro: below 1).
-    radius_mm : float or None
-        Naive normals: the neighbourhood radius; None: from the material.
     """
 
     eigenpairs: int = 300
     width_mm: float | None = None
-    alpha: float = 0.5
-    radius_mm: float | None = None
 
     def check(self) -> None:
         if not (isinstance(self.eigenpairs, int) and 1 <= self.eigenpairs <= 5000):
             raise ValueError(f"spectral: eigenpairs must be a whole number in [1, 5000], got {self.eigenpairs!r}")
-        for name in ("width_mm", "radius_mm"):
-            value = getattr(self, name)
-            if value is not None and not (isinstance(value, (int, float)) and 0 <= value < float("inf")):
-                raise ValueError(f"spectral: {name} must be a finite number >= 0 or None, got {value!r}")
-        if not (isinstance(self.alpha, (int, float)) and 0 <= self.alpha < float("inf")):
-            raise ValueError(f"spectral: alpha must be a finite number >= 0, got {self.alpha!r}")
+        value = self.width_mm
+        if value is not None and not (isinstance(value, (int, float)) and 0 <= value < float("inf")):
+            raise ValueError(f"spectral: width_mm must be a finite number >= 0 or None, got {value!r}")
 
 
 SPECTRAL_DEFAULTS = SpectralPrecomputeOptions()
@@ -71,22 +64,17 @@ class SpectralPrecompute:
     ----------
     normals : (n, 3) float64
         The spectral subsurface normals of the surface's vertices, unit.
-    naive : (n, 3) float64
-        The naive ones.
     spectrum : NormalSpectrum
         Coefficients, residual and basis, to filter again (`NormalSpectrum.filtered`).
-    width_mm, gamma, sigma_tr, radius_mm : float
-        The filter width and the residual's factor; the naive σ_tr (1/mm) and radius.
+    width_mm, gamma : float
+        The filter width and the residual's factor.
     stats, seconds : dict
     """
 
     normals: np.ndarray
-    naive: np.ndarray
     spectrum: NormalSpectrum
     width_mm: float
     gamma: float
-    sigma_tr: float
-    radius_mm: float
     stats: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
 
@@ -107,12 +95,7 @@ def precompute_spectral(surface: Surface, mm_per_unit: float, material: Material
     # a 2-D Gaussian of standard deviation s holds half its mass within s sqrt(2 ln 2)
     width = float(options.width_mm if options.width_mm is not None
                   else channel_weights(params) @ radius_holding(params, 0.5) / np.sqrt(2.0 * np.log(2.0)))
-    sigma_tr, radius = naive_parameters(material)
-    radius = float(options.radius_mm) if options.radius_mm is not None else radius
     x = surface.positions * mm_per_unit
-    t = time.perf_counter()
-    naive = naive_normals(x, surface.normals, sigma_tr, options.alpha, radius)
-    seconds["naive"] = time.perf_counter() - t
     t = time.perf_counter()
     laplacian = cotangent_laplacian(x, surface.faces)
     seconds["laplacian"] = time.perf_counter() - t
@@ -125,13 +108,13 @@ def precompute_spectral(surface: Surface, mm_per_unit: float, material: Material
     seconds["filter"] = time.perf_counter() - t
     cos = np.einsum("ij,ij->i", normals, surface.normals)
     stats = {"vertices": len(x), "eigenpairs": len(harmonics.values), "bands": harmonics.bands,
-             "slivers": laplacian.slivers, "widthMm": width, "gamma": gamma, "naiveSigmaTr": sigma_tr,
-             "naiveRadiusMm": radius, "lowestFrequency": float(np.sqrt(harmonics.values[-1])),
+             "slivers": laplacian.slivers, "widthMm": width, "gamma": gamma,
+             "lowestFrequency": float(np.sqrt(harmonics.values[-1])),
              "nyquistFrequency": spectrum.nyquist,
              # the highest frequency the basis holds, against the filter's: how much the cut matters
              "filterAtCutoff": float(np.exp(-0.5 * harmonics.values[-1] * width * width)),
              "meanTiltDegrees": float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).mean())}
-    return SpectralPrecompute(normals, naive, spectrum, width, gamma, sigma_tr, radius, stats, seconds)
+    return SpectralPrecompute(normals, spectrum, width, gamma, stats, seconds)
 
 
 def naive_parameters(material: Material) -> tuple[float, float]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -30,18 +30,14 @@ class SpectralBake:
     ----------
     normals : (n, 3) float64
         Unit spectral subsurface normals of the welded surface vertices.
-    naive : (n, 3) float64
-        Unit naive subsurface normals (neighbour weighting), for comparison.
     tables : dict or None
         `spectral_layout.spectral_tables` when the basis is exported, else None (the basis, n × m,
         is then not kept).
     report : dict
-        Options, the precompute's stats (filter width, γ, naive σ_tr and radius, frequencies,
-        mean tilt), seconds per step and bytes per block as stored.
+        Options, the precompute's stats (filter width, γ, frequencies, mean tilt), seconds per step and bytes per block as stored.
     """
 
     normals: np.ndarray
-    naive: np.ndarray
     tables: dict | None = None
     report: dict = field(default_factory=dict)
 
@@ -68,7 +64,7 @@ def bake_spectral(surface: Surface, mm_per_unit: float, material: Material, opti
     report = {**asdict(options), "basis": with_basis, **stats, "seconds": seconds,
               "bytes": spectral_bytes(n, m, with_basis)}
     tables = spectral_tables(pre.spectrum, pre.width_mm, pre.gamma) if with_basis else None
-    return SpectralBake(pre.normals, pre.naive, tables, report)
+    return SpectralBake(pre.normals, tables, report)
 
 
 class SpectralStage:
@@ -81,6 +77,9 @@ class SpectralStage:
 
     def vertex_attributes(self, result: TechniqueBake, welded: np.ndarray) -> tuple[VertexAttribute, ...]:
         return spectral_vertex_attributes(result.data, welded, result.tables is not None)
+
+    def stage_options(self, options: SpectralOptions) -> SpectralOptions:
+        return replace(options, variant=False)  # an extra file made from the normals, not a part of them
 
     def extra_outputs(self, options: SpectralOptions) -> dict[str, Callable[[BakedAsset], BakedAsset]]:
         return {"sss_normals": normals_variant} if options.variant else {}

@@ -12,7 +12,7 @@ from sssbake.pipeline.techniques.technique import MESH, Technique
 class Spectral(SpectralStage, SpectralVerify, SpectralTradeoff, Technique):
     name = "spectral"
     scope = MESH
-    stage_version = 1
+    stage_version = 2
     needs_atlas = False
     options_type = SpectralOptions
     draw_unit = "mesh"

@@ -10,7 +10,7 @@ from sssbake.pipeline.core.naive_normals import naive_normals
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.render.image_metrics import rmse
 from sssbake.pipeline.render.items import PLAIN_ALBEDO
-from sssbake.pipeline.techniques.spectral.precompute import SPECTRAL_DEFAULTS, naive_parameters
+from sssbake.pipeline.techniques.spectral.precompute import NAIVE_ALPHA, naive_parameters
 from sssbake.pipeline.techniques.spectral.reader import read_spectral_glb, read_spectral_usd
 from sssbake.pipeline.techniques.technique import VerifyShot, VerifyUnit
 
@@ -51,6 +51,6 @@ class SpectralVerify:
 
 def default_naive_normals(surface: Surface, mm_per_unit: float, material: Material) -> np.ndarray:
     """(n, 3) Patro's naive normals of `surface`'s vertices with the spectral precompute's defaults
-    (σ_tr and radius from the material, `SPECTRAL_DEFAULTS.alpha`), without its eigensolve."""
+    (σ_tr and radius from the material, `NAIVE_ALPHA`), without its eigensolve."""
     sigma_tr, radius = naive_parameters(material)
-    return naive_normals(surface.positions * mm_per_unit, surface.normals, sigma_tr, SPECTRAL_DEFAULTS.alpha, radius)
+    return naive_normals(surface.positions * mm_per_unit, surface.normals, sigma_tr, NAIVE_ALPHA, radius)

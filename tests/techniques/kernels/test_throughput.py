@@ -7,6 +7,8 @@ from kernels_planes import flat_surface
 
 from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile, total_diffuse_reflectance
 from sssbake.pipeline.core.materials import preset
+from sssbake.pipeline.core.surface import Surface, vertex_areas
+from sssbake.pipeline.techniques.kernels import throughput
 from sssbake.pipeline.techniques.kernels.throughput import throughput_matrix
 
 P = DipoleParams.from_material(preset("skin1"))
@@ -53,3 +55,28 @@ def test_a_higher_threshold_keeps_fewer_entries_and_the_guard_refuses_a_huge_f(p
     assert 0 < coarse.nnz < f.nnz and coarse.radius_mm < f.radius_mm
     with pytest.raises(ValueError, match="raise the threshold"):
         throughput_matrix(s.positions, s.faces, s.normals, P, 1e-5, max_entries=1000)
+
+
+def test_dropping_candidates_by_cell_before_the_values_changes_no_entry(monkeypatch):
+    # Jittered cells, so that sources of one search class reach differently far: the bound of
+    # `_may_reach` must drop candidates (else this tests nothing) and F must not change at all.
+    s = flat_surface(1.0, 10)
+    rng = np.random.default_rng(3)
+    x = s.positions + np.c_[rng.uniform(-0.3, 0.3, (len(s.positions), 2)), np.zeros(len(s.positions))]
+    s = Surface(x, s.faces, s.normals, vertex_areas(x, s.faces), s.weld)
+    dropped, bound = [], throughput._may_reach
+
+    def counted(*args):
+        live = bound(*args)
+        dropped.append(int((~live).sum()))
+        return live
+
+    monkeypatch.setattr(throughput, "_may_reach", counted)
+    fast = throughput_matrix(s.positions, s.faces, s.normals, P, 1e-4)
+    monkeypatch.setattr(throughput, "_may_reach", lambda *args: np.ones(len(args[-1]), dtype=bool))
+    slow = throughput_matrix(s.positions, s.faces, s.normals, P, 1e-4)
+    assert sum(dropped) > 0.05 * slow.nnz
+    np.testing.assert_array_equal(fast.indptr, slow.indptr)
+    np.testing.assert_array_equal(fast.indices, slow.indices)
+    np.testing.assert_array_equal(fast.values, slow.values)
+    np.testing.assert_allclose(fast.sent, slow.sent, rtol=1e-12)

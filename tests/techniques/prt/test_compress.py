@@ -291,3 +291,32 @@ def test_reference_floor_keeps_small_meshes_dense():
     for floor, expected in ((256, 256), (0, 42), (5000, 642)):
         prt = compress_prt(q, dirs, x, f, 1.3, PrtCompressOptions(reference_floor=floor))
         assert abs(len(prt.ref_vertices) - expected) <= 0.05 * expected + 3, (floor, len(prt.ref_vertices))
+
+
+def test_float32_vertex_major_q_compresses_exactly_as_float64(torus):
+    # precompute_prt's q: float32 (the gather's own rounding, so exact) in vertex-major memory
+    # under the (3, n, K) view. The compression reads it in float64 pieces (`_dots`): every
+    # choice (reference points, best-fit triangles, weights, tables) and the error must match
+    # those from the same values as a float64 (3, n, K) array.
+    v, f, ds, q = torus
+    q32 = np.ascontiguousarray(q.astype(np.float32).transpose(1, 0, 2)).transpose(1, 0, 2)
+    q64 = q32.astype(np.float64)
+    options = PrtCompressOptions(reference_fraction=0.2, sh_order=2)
+    a, b = compress_prt(q32, ds, v, f, 1.4, options), compress_prt(q64, ds, v, f, 1.4, options)
+    for name in ("ref_vertices", "ref_triangles", "vertex_triangle", "weight_codes", "ref_codes", "dq_codes"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    np.testing.assert_allclose(a.ref_scale, b.ref_scale, rtol=1e-6)
+    assert rms(a, q64) == pytest.approx(rms(b, q64), rel=1e-6)
+
+
+def test_compression_error_in_chunks_is_the_whole_arrays(torus):
+    from sssbake.pipeline.techniques.prt.stage import compression_error
+
+    v, f, ds, q = torus
+    prt = compress_prt(q, ds, v, f, 1.4, PrtCompressOptions(reference_fraction=0.2, sh_order=1))
+    error = decode_at_directions(prt) - q
+    squares, largest = compression_error(prt, q, chunk=97)  # chunks that do not divide n
+    assert squares == pytest.approx(float(np.sum(error**2)), rel=1e-12)
+    assert largest == float(np.abs(error).max())
+    part = decode_at_directions(prt, slice(100, 300))
+    np.testing.assert_array_equal(part, decode_at_directions(prt)[:, 100:300])

@@ -216,3 +216,17 @@ def test_bad_input_is_refused(torus):
     refs = reference_points(v, f, 40)
     with pytest.raises(ValueError, match="q must be"):
         least_squares_weights(np.zeros((3, 5, 8)), np.zeros((3, 5, 8)), refs)
+
+
+def test_fit_inner_products_of_float32_signals_are_float64_sums():
+    # `_fit`'s misfit is |q|² - 2 b·w + wᵀGw: it cancels to ~1e-7 of |q|² for a good fit, so its
+    # inner products must be float64 sums even of float32 q (a float32 sum errs by ~1e-7).
+    from sssbake.pipeline.techniques.prt.reference_points import _dots, _vertex_rows
+
+    rng = np.random.default_rng(3)
+    q = rng.random((3, 500, 200)).astype(np.float32)
+    i, j = rng.integers(0, 500, 2000), rng.integers(0, 500, 2000)
+    exact = np.einsum("cik,cik->i", q[:, i].astype(np.float64), q[:, j].astype(np.float64))
+    vertex_major = np.ascontiguousarray(_vertex_rows(q))
+    np.testing.assert_allclose(_dots(vertex_major, i, vertex_major, j), exact, rtol=1e-13)
+    np.testing.assert_allclose(_dots(_vertex_rows(q), i, _vertex_rows(q.astype(np.float64)), j), exact, rtol=1e-13)

@@ -40,7 +40,7 @@ def test_defaults_follow_the_material_and_scale():
     skin = precompute_spectral(s, 20.0, preset("skin1"), SpectralPrecomputeOptions(eigenpairs=40))
     p = DipoleParams.from_material(preset("skin1"))
     assert skin.width_mm == pytest.approx(channel_weights(p) @ radius_holding(p, 0.5) / np.sqrt(2 * np.log(2)))
-    assert np.allclose(np.linalg.norm(skin.normals, axis=1), 1.0) and np.allclose(np.linalg.norm(skin.naive, axis=1), 1.0)
+    assert np.allclose(np.linalg.norm(skin.normals, axis=1), 1.0)
     # a sphere's normals are an l = 1 harmonic: the filter keeps their direction
     assert np.einsum("ij,ij->i", skin.normals, s.normals).min() > 0.999
     assert skin.stats["eigenpairs"] == 40 and 0 < skin.gamma < 1
@@ -56,8 +56,7 @@ def test_filter_smooths_a_cube_and_the_width_matters():
     assert tilt[0] < tilt[1] < tilt[2]  # a wider filter bends the normals further from the faces'
 
 
-@pytest.mark.parametrize("field, value", [("eigenpairs", 0), ("width_mm", -1.0), ("alpha", float("nan")),
-                                          ("radius_mm", float("inf"))])
+@pytest.mark.parametrize("field, value", [("eigenpairs", 0), ("width_mm", -1.0), ("width_mm", float("inf"))])
 def test_bad_options_raise_one_line_errors(field, value):
     with pytest.raises(ValueError, match=f"spectral: {field}"):
         SpectralPrecomputeOptions(**{field: value}).check()
