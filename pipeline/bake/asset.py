@@ -353,7 +353,7 @@ def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path,
     mesh = b.scene.meshes[mi]
     mesh_mm = b.mm_per_unit * instance_scale(b.scene, mi, b.warnings)
     b.scale_mm[mi] = mesh_mm
-    diag_mm = float(np.linalg.norm(np.ptp(surface.positions, axis=0))) * mesh_mm
+    diag_mm = _miss_cap(surface) * mesh_mm
     mats = sorted({p.material for p in mesh.primitives if b.material_of.get(p.material) is not None})
     b.sizes[mesh.name] = [_size_report(mesh.name, diag_mm, b.material_of[m], b.warnings) for m in mats]
     if not mats:

@@ -263,9 +263,11 @@ def _read_result(path: Path, part_faces: list[int], pieces: list[_Piece], jitter
         shrink = np.array([width, height], dtype=np.float64) / padded
         vmappings, uvs = [[] for _ in part_faces], [[] for _ in part_faces]
         faces = [np.empty((m, 3), dtype=np.int64) for m in part_faces]
+        offsets = [0] * len(part_faces)  # atlas vertices of each part so far
         for j, piece in enumerate(pieces):
-            offset = sum(len(v) for v in vmappings[piece.part])
+            offset = offsets[piece.part]
             vmappings[piece.part].append(piece.vertices[data[f"vmapping_{j}"].astype(np.int64)])
+            offsets[piece.part] += len(vmappings[piece.part][-1])
             uvs[piece.part].append(data[f"uvs_{j}"].astype(np.float64).reshape(-1, 2) * shrink)
             faces[piece.part][piece.triangles] = data[f"faces_{j}"].astype(np.int64).reshape(-1, 3) + offset
         parts = tuple(AtlasPart(np.concatenate(v), f, np.concatenate(u)) for v, f, u in zip(vmappings, faces, uvs))
