@@ -18,6 +18,7 @@ from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
+import psutil
 from PIL import Image as PILImage
 
 from sssbake.exporters.atomic import atomic_path
@@ -56,7 +57,7 @@ from sssbake.pipeline.options import BakeOptions
 from sssbake.pipeline.planning.assign import Assignment, assign_materials
 from sssbake.pipeline.planning.plan import PlanEntry, decide, with_pilot
 from sssbake.pipeline.techniques.registry import TECHNIQUES
-from sssbake.pipeline.techniques.technique import MATERIAL, MESH, TechniqueBake
+from sssbake.pipeline.techniques.technique import MATERIAL, MESH, Budget, TechniqueBake
 
 # Bump a stage's version when its output for the same input changes (a technique's: its `stage_version`).
 STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 1, "thickness_map": 2,
@@ -196,6 +197,7 @@ class _Baking:
     plan: list[PlanEntry] = field(default_factory=list)  # the planner's entries (--techniques auto)
     material_options: dict[int, BakeOptions] = field(default_factory=dict)  # per material, its plan entry's
     used: set[str] = field(default_factory=set)  # techniques some mesh or material ran
+    started: float = field(default_factory=time.monotonic)  # against asset_timeout_s (`_budget`)
 
     def __post_init__(self) -> None:
         self.meshes, self.images, self.textures = (list(self.scene.meshes), list(self.scene.images),
@@ -446,7 +448,7 @@ def _bake_mesh_techniques(b: _Baking, mi: int, mats: list[int], surface: Surface
         if t.scope != MESH or t.name not in chosen or t.needs_atlas != (stages is not None):
             continue
         _one_material(t.name, mesh, mats, b.scene, b.warnings)
-        geometry = {"surface": surface, "primitives": primitives}
+        geometry = {"surface": surface, "primitives": primitives, "budget": _budget(b)}
         if t.needs_atlas:
             geometry.update(atlas=stages.atlas, atlas_padding=b.options.atlas_padding)
         # Keyed on the atlas when the technique reads it, else on the mesh: the welded surface.
@@ -460,6 +462,14 @@ def _bake_mesh_techniques(b: _Baking, mi: int, mats: list[int], surface: Surface
         b.blocks[t.name][mesh.name] = result.report
         results[t.name] = result
     return results
+
+
+def _budget(b: _Baking) -> Budget:
+    """What the asset may still spend as a technique starts: its worker's limits (`asset_memory_gib`,
+    `asset_timeout_s`, 0 for none) less this process's resident memory and the time since the bake began."""
+    memory, seconds = b.options.asset_memory_gib, b.options.asset_timeout_s
+    return Budget(memory * 2.0**30 - psutil.Process().memory_info().rss if memory else None,
+                  seconds - (time.monotonic() - b.started) if seconds else None)
 
 
 def _baked_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: _MeshStages, mesh_mm: float,

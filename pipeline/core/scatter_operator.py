@@ -26,6 +26,10 @@ source) vertex pair is thereby counted exactly once.
 A wider separation buys accuracy more cheaply than clusters' first moments Σ ΔA E (y - ȳ)
 (benchmarks/README.md#scatter-operator-separation).
 
+`scatter_plan` does all of this but the entries: the cells, the pairs each level reads and the
+clusters' moments; its `build` computes the entries, and `scatter_forecast` builds a sample of its
+rows to say beforehand what the whole will hold and take.
+
 Vertices are kept in Morton order of their finest cell, so every cell of every level is a
 contiguous run of vertices (clusters are sums over runs) and the sparse products read memory
 that lies close together.
@@ -234,7 +238,163 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
     -------
     ScatterOperator
     """
+    if options.hierarchy:
+        return scatter_plan(positions_mm, faces, normals, params, options).build()
     t0 = time.perf_counter()
+    x, tri, nrm, area = _checked(positions_mm, faces, normals, options)
+    n = len(x)
+    radius, total, dropped = _radius(params, options)
+    dtype = np.float32 if options.float32 else np.float64
+    build = _Builder(params, radius, dtype, options.threads, NearField.build(x, tri, nrm, params))
+    lists = cKDTree(x).query_ball_point(x, float(radius.max()))
+    count = np.fromiter((len(v) for v in lists), dtype=np.int64, count=len(lists))
+
+    def source_of(j0, j1):
+        which = np.repeat(np.arange(j0, j1), count[j0:j1])
+        return which, np.concatenate([np.asarray(v, dtype=np.int64) for v in lists[j0:j1]])
+
+    near = build.near(np.arange(n), count, source_of)
+    source_area = _limit_energy(near, [], area, total)
+    stats = dict(levels=0, separation=0, near_nnz=int(near.nnz), far_nnz=[], cells=[],
+                 seconds=time.perf_counter() - t0)
+    return ScatterOperator(np.arange(n), source_area, near, [], radius, dropped, stats, options.threads, options.block)
+
+
+@dataclass(frozen=True, eq=False)
+class ScatterPlan:
+    """The hierarchical gather before its entries: the vertices' Morton order, the cells of every
+    level and which (target cell, source cell) pairs each level reads (`scatter_plan`). `build` it,
+    or build the rows of a few targets to forecast the whole (`scatter_forecast`).
+
+    Attributes
+    ----------
+    order : (n,) int64
+        Caller's index of each internal vertex.
+    positions, normals : (n, 3) float64
+        Internal order, millimetres.
+    area : (n,) float64
+        ΔA of each internal vertex (mm²).
+    total : (3,) float64
+        R_d per channel (what `_limit_energy` holds each source to).
+    radius_mm, dropped_fraction : (3,) float64
+    starts : list of (m_l,) int64
+        Per level, the first internal vertex of each cell.
+    cell_of : list of (n,) int64
+        Per level, each internal vertex's cell.
+    far : list of (int, _Clusters)
+        (level, its clusters and which of them each target cell reads) for each level with
+        well-separated pairs, coarsest first.
+    near_ptr, near_lists : (m_0 + 1,) and (p,) int
+        Per level-0 cell, the cells whose vertices it sums vertex by vertex (`_lists`).
+    near_per_cell : (m_0,) int64
+        Source vertices each level-0 cell's targets read so.
+    builder : _Builder
+    stats : dict
+        ``cell_mm``, ``levels``, ``separation``.
+    options : ScatterOptions
+    """
+
+    order: np.ndarray
+    positions: np.ndarray
+    normals: np.ndarray
+    area: np.ndarray
+    total: np.ndarray
+    radius_mm: np.ndarray
+    dropped_fraction: np.ndarray
+    starts: list
+    cell_of: list
+    far: list
+    near_ptr: np.ndarray
+    near_lists: np.ndarray
+    near_per_cell: np.ndarray
+    builder: "_Builder"
+    stats: dict
+    options: ScatterOptions
+
+    def matrices(self, rows: np.ndarray) -> tuple[sp.csr_matrix, list]:
+        """The rows of the targets `rows` (T,) internal indices: (near (3T, n), FarLevel per level with
+        cluster terms, finest first), before `_limit_energy`."""
+        levels = [FarLevel(self.builder.far(clusters, self.cell_of[level], rows), self.starts[level])
+                  for level, clusters in self.far]
+        # Pairs still near at level 0: every vertex pair, exactly.
+        keys = self.cell_of[0][rows]
+        vertex_ptr = np.r_[self.starts[0], len(self.positions)]
+
+        def source_of(j0, j1):
+            which, cells_near = _gather(keys[j0:j1], self.near_ptr, self.near_lists)
+            inner, source = _gather(cells_near, vertex_ptr)
+            return which[inner] + j0, source
+
+        return self.builder.near(rows, self.near_per_cell[keys], source_of), levels[::-1]
+
+    def build(self) -> ScatterOperator:
+        """The operator: every vertex a target."""
+        t0 = time.perf_counter()
+        near, levels = self.matrices(np.arange(len(self.positions)))
+        source_area = _limit_energy(near, levels, self.area, self.total)
+        release_freed_memory()  # the build's temporaries, before the caller allocates q
+        stats = dict(self.stats, near_nnz=int(near.nnz), far_nnz=[int(f.matrix.nnz) for f in levels],
+                     cells=[len(f.starts) for f in levels],
+                     seconds=self.stats["seconds"] + time.perf_counter() - t0)
+        return ScatterOperator(self.order, source_area, near, levels, self.radius_mm, self.dropped_fraction, stats,
+                               self.options.threads, self.options.block)
+
+
+def scatter_plan(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: DipoleParams,
+                 options: ScatterOptions = SCATTER_DEFAULTS) -> ScatterPlan:
+    """The hierarchy of `scatter_operator` (same arguments, `options.hierarchy` true) without its entries."""
+    t0 = time.perf_counter()
+    x, tri, nrm, area = _checked(positions_mm, faces, normals, options)
+    if not options.hierarchy:
+        raise ValueError("scatter: a plan needs the hierarchy (options.hierarchy)")
+    n = len(x)
+    radius, total, dropped = _radius(params, options)
+    r_max = float(radius.max())
+    dtype = np.float32 if options.float32 else np.float64
+    # Finest cell: about `vertices_per_cell` vertices of area; at least extent / 2^20 so that
+    # Morton codes (21 bits per axis) hold every coordinate.
+    a = options.separation
+    extent = float(np.ptp(x, axis=0).max())
+    h0 = max(np.sqrt(options.vertices_per_cell * area.sum() / n), extent * 2.0**-20, 1e-12)
+    coords = np.floor((x - x.min(axis=0)) / h0).astype(np.int64)
+    code = morton_codes(coords)
+    order = np.argsort(code, kind="stable")
+    x, area, nrm, coords, code = x[order], area[order], nrm[order], coords[order], code[order]
+    inverse = np.empty(n, dtype=np.int64)
+    inverse[order] = np.arange(n)
+    # Well-separated clusters are at least a·h_0 from their targets.
+    build = _Builder(params, radius, dtype, options.threads, NearField.build(x, inverse[tri], nrm, params),
+                     closest=a * h0)
+    # Top level: pairs it leaves out (more than `a` cells apart) are beyond the radius, or there
+    # are none because the whole object spans at most `a` cells.
+    top = 0
+    while a * h0 * 2.0**top < r_max and np.ptp(coords >> top, axis=0).max() > a:
+        top += 1
+    cell_of = [_runs(code >> (3 * level)) for level in range(top + 1)]  # per level: vertex -> cell
+    starts = [np.flatnonzero(np.r_[True, c[1:] != c[:-1]]) for c in cell_of]
+    cell_coords = [coords[s] >> level for level, s in enumerate(starts)]
+
+    pairs = _near_cell_pairs(cell_coords[top], a)
+    far = []
+    for level in range(top - 1, -1, -1):
+        # Children of near parent pairs: near ones descend, the others are well separated here.
+        first_child = cell_of[level][starts[level + 1]]
+        n_children = np.diff(np.r_[first_child, len(starts[level])])
+        pairs = _expand_runs(pairs, first_child, n_children)
+        gap = np.abs(cell_coords[level][pairs[:, 0]] - cell_coords[level][pairs[:, 1]]).max(axis=1)
+        if np.any(gap > a):
+            far.append((level, _Clusters.build(x, area, nrm, starts[level], cell_of[level], pairs[gap > a])))
+        pairs = pairs[gap <= a]
+    near_ptr, near_lists = _lists(pairs.astype(np.int32), len(starts[0]))
+    size = np.diff(np.r_[starts[0], n])
+    per_cell = np.bincount(pairs[:, 0], weights=size[pairs[:, 1]], minlength=len(starts[0])).astype(np.int64)
+    stats = dict(cell_mm=float(h0), levels=top + 1, separation=a, seconds=time.perf_counter() - t0)
+    return ScatterPlan(order, x, nrm, area, total, radius, dropped, starts, cell_of, far, near_ptr, near_lists,
+                       per_cell, build, stats, options)
+
+
+def _checked(positions_mm, faces, normals, options: ScatterOptions):
+    """(x, faces, normals, vertex areas) as arrays, or ValueError naming what is wrong."""
     x = np.asarray(positions_mm, dtype=np.float64)
     tri = np.asarray(faces)
     nrm = np.asarray(normals, dtype=np.float64)
@@ -252,88 +412,16 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
         raise ValueError("scatter: separation must be >= 1 and vertices_per_cell > 0")
     if options.threads < 1 or options.block < 1:
         raise ValueError("scatter: threads and block must be >= 1")
-    n = len(x)
+    return x, tri, nrm, area
 
+
+def _radius(params: DipoleParams, options: ScatterOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(truncation radius, R_d, fraction of R_d beyond the radius), each (3,) per channel."""
     radius = radius_for_energy(options.energy_dropped, params)
     total = total_diffuse_reflectance(params.alpha_prime, params.eta)
     kept = np.diagonal(disc_integral(radius, params))
     dropped = np.clip(np.where(total > 0, 1.0 - kept / np.where(total > 0, total, 1.0), 0.0), 0.0, 1.0)
-    r_max = float(radius.max())
-    dtype = np.float32 if options.float32 else np.float64
-    if not options.hierarchy:
-        build = _Builder(params, radius, dtype, options.threads, NearField.build(x, tri, nrm, params))
-        lists = cKDTree(x).query_ball_point(x, r_max)
-        count = np.fromiter((len(v) for v in lists), dtype=np.int64, count=len(lists))
-
-        def source_of(j0, j1):
-            which = np.repeat(np.arange(j0, j1), count[j0:j1])
-            return which, np.concatenate([np.asarray(v, dtype=np.int64) for v in lists[j0:j1]])
-
-        near = build.near(np.arange(n), count, source_of)
-        source_area = _limit_energy(near, [], area, total)
-        stats = dict(levels=0, separation=0, near_nnz=int(near.nnz), far_nnz=[], cells=[],
-                     seconds=time.perf_counter() - t0)
-        return ScatterOperator(np.arange(n), source_area, near, [], radius, dropped, stats,
-                               options.threads, options.block)
-
-    # Finest cell: about `vertices_per_cell` vertices of area; at least extent / 2^20 so that
-    # Morton codes (21 bits per axis) hold every coordinate.
-    a = options.separation
-    extent = float(np.ptp(x, axis=0).max())
-    h0 = max(np.sqrt(options.vertices_per_cell * area.sum() / n), extent * 2.0**-20, 1e-12)
-    coords = np.floor((x - x.min(axis=0)) / h0).astype(np.int64)
-    code = morton_codes(coords)
-    order = np.argsort(code, kind="stable")
-    x, area, nrm, coords, code = x[order], area[order], nrm[order], coords[order], code[order]
-    inverse = np.empty(n, dtype=np.int64)
-    inverse[order] = np.arange(n)
-    # Well-separated clusters are at least a·h_0 from their targets.
-    build = _Builder(params, radius, dtype, options.threads, NearField.build(x, inverse[tri], nrm, params),
-                     closest=a * h0)
-    internal = np.arange(n)  # every vertex is a target, rows in internal order
-    # Top level: pairs it leaves out (more than `a` cells apart) are beyond the radius, or there
-    # are none because the whole object spans at most `a` cells.
-    top = 0
-    while a * h0 * 2.0**top < r_max and np.ptp(coords >> top, axis=0).max() > a:
-        top += 1
-    cell_of = [_runs(code >> (3 * level)) for level in range(top + 1)]  # per level: vertex -> cell
-    starts = [np.flatnonzero(np.r_[True, c[1:] != c[:-1]]) for c in cell_of]
-    cell_coords = [coords[s] >> level for level, s in enumerate(starts)]
-
-    pairs = _near_cell_pairs(cell_coords[top], a)
-    levels, far_nnz, cells = [], [], []
-    for level in range(top - 1, -1, -1):
-        # Children of near parent pairs: near ones descend, the others are well separated here.
-        first_child = cell_of[level][starts[level + 1]]
-        n_children = np.diff(np.r_[first_child, len(starts[level])])
-        pairs = _expand_runs(pairs, first_child, n_children)
-        gap = np.abs(cell_coords[level][pairs[:, 0]] - cell_coords[level][pairs[:, 1]]).max(axis=1)
-        separated = pairs[gap > a]
-        pairs = pairs[gap <= a]
-        if len(separated):
-            matrix = build.far(x, area, nrm, starts[level], cell_of[level], internal, separated)
-            levels.append(FarLevel(matrix, starts[level]))
-            far_nnz.append(int(matrix.nnz))
-            cells.append(len(starts[level]))
-    # Pairs still near at level 0: every vertex pair, exactly.
-    ptr, lists = _lists(pairs, len(starts[0]))
-    size = np.diff(np.r_[starts[0], n])
-    keys = cell_of[0][internal]
-    vertex_ptr = np.r_[starts[0], n]
-
-    def source_of(j0, j1):
-        which, cells_near = _gather(keys[j0:j1], ptr, lists)
-        inner, source = _gather(cells_near, vertex_ptr)
-        return which[inner] + j0, source
-
-    per_row = np.bincount(pairs[:, 0], weights=size[pairs[:, 1]], minlength=len(starts[0])).astype(np.int64)[keys]
-    near = build.near(internal, per_row, source_of)
-    source_area = _limit_energy(near, levels, area, total)
-    release_freed_memory()  # the build's temporaries, before the caller allocates q
-    stats = dict(cell_mm=float(h0), levels=top + 1, separation=a, near_nnz=int(near.nnz),
-                 far_nnz=far_nnz[::-1], cells=cells[::-1], seconds=time.perf_counter() - t0)
-    return ScatterOperator(order, source_area, near, levels[::-1], radius, dropped, stats,
-                           options.threads, options.block)
+    return radius, total, dropped
 
 
 def _limit_energy(near: sp.csr_matrix, levels: list, area: np.ndarray, total: np.ndarray) -> np.ndarray:
@@ -384,6 +472,41 @@ def _column_sums(matrix: sp.csr_matrix, weights: np.ndarray, row0: int, row1: in
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _Clusters:
+    """One level's clusters, as its targets read them: centroid (3, m), area covariance spread
+    (6, m: xx, yy, zz, xy, xz, yz) and its trace (m,), and per target cell the clusters it reads
+    (`_lists`: ptr, lists)."""
+
+    count: int
+    centroid: np.ndarray
+    spread: np.ndarray
+    trace: np.ndarray
+    ptr: np.ndarray
+    lists: np.ndarray
+
+    @staticmethod
+    def build(x: np.ndarray, area: np.ndarray, nrm: np.ndarray, starts: np.ndarray, cell_of: np.ndarray,
+              pairs: np.ndarray) -> "_Clusters":
+        """`pairs` (p, 2) are the level's well-separated (target cell, source cell) pairs."""
+        m = len(starts)
+        cluster_area = np.add.reduceat(area, starts)
+        safe = np.where(cluster_area > 0, cluster_area, 1.0)
+        centroid = (np.add.reduceat(area[:, None] * x, starts, axis=0) / safe[:, None]).T.copy()  # (3, m)
+        off = x.T - centroid[:, cell_of]
+        products = np.stack([off[0] * off[0], off[1] * off[1], off[2] * off[2],
+                             off[0] * off[1], off[0] * off[2], off[1] * off[2]])
+        # Each vertex is a disc of its area in its tangent plane (as in the near pairs), of
+        # covariance (a²/4)(I - n nᵀ) with a² = ΔA/π.
+        nx, ny, nz = nrm.T
+        disc = np.stack([1.0 - nx * nx, 1.0 - ny * ny, 1.0 - nz * nz, -nx * ny, -nx * nz, -ny * nz]) * (area / (4 * np.pi))
+        spread = np.add.reduceat((products + disc) * area, starts, axis=1) / safe
+        # Clusters without area gather nothing: leave them out.
+        # int32: the plan keeps every level's lists until the build (cells are far fewer than 2^31)
+        ptr, lists = _lists(pairs[cluster_area[pairs[:, 1]] > 0].astype(np.int32), m)
+        return _Clusters(m, centroid, spread, spread[0] + spread[1] + spread[2], ptr, lists)
+
+
 class _Builder:
     """Computes the matrices' entries in chunks of rows, on `threads` threads."""
 
@@ -414,28 +537,14 @@ class _Builder:
 
         return self._assemble(entries, per_row, len(self.field.positions))
 
-    def far(self, x, area, nrm, starts, cell_of, rows, pairs) -> sp.csr_matrix:
+    def far(self, clusters: "_Clusters", cell_of: np.ndarray, rows: np.ndarray) -> sp.csr_matrix:
         """(3T, m): each target's cluster kernel Rd_c(D) + ½ tr(H Σ) for the clusters its cell
-        reads at this level (`pairs` of target cell, source cell)."""
-        m = len(starts)
-        cluster_area = np.add.reduceat(area, starts)
-        safe = np.where(cluster_area > 0, cluster_area, 1.0)
-        centroid = (np.add.reduceat(area[:, None] * x, starts, axis=0) / safe[:, None]).T.copy()  # (3, m)
-        off = x.T - centroid[:, cell_of]
-        # Area covariance of each cluster, six components (xx, yy, zz, xy, xz, yz), (6, m).
-        products = np.stack([off[0] * off[0], off[1] * off[1], off[2] * off[2],
-                             off[0] * off[1], off[0] * off[2], off[1] * off[2]])
-        # Each vertex is a disc of its area in its tangent plane (as in the near pairs), of
-        # covariance (a²/4)(I - n nᵀ) with a² = ΔA/π.
-        nx, ny, nz = nrm.T
-        disc = np.stack([1.0 - nx * nx, 1.0 - ny * ny, 1.0 - nz * nz, -nx * ny, -nx * nz, -ny * nz]) * (area / (4 * np.pi))
-        spread = np.add.reduceat((products + disc) * area, starts, axis=1) / safe
-        trace = spread[0] + spread[1] + spread[2]
-        # Clusters without area gather nothing: leave them out.
-        pairs = pairs[cluster_area[pairs[:, 1]] > 0]
-        ptr, lists = _lists(pairs, m)
+        reads at this level."""
+        m = clusters.count
+        centroid, spread, trace, ptr, lists = (clusters.centroid, clusters.spread, clusters.trace, clusters.ptr,
+                                               clusters.lists)
         keys = cell_of[rows]
-        xt = x.T.copy()
+        xt = self.field.positions.T.copy()
         table = self.table
 
         def entries(j0, j1):

@@ -225,6 +225,24 @@ class VerifyUnit:
     lambert_q: Callable[[np.ndarray], np.ndarray]
 
 
+@dataclass(frozen=True)
+class Budget:
+    """What the asset may still spend when a technique starts (its worker's limits less what the
+    bake already holds and took): a technique that can forecast its cost refuses up front rather
+    than be killed at the limit.
+
+    Attributes
+    ----------
+    memory_bytes : float or None
+        Resident memory left (None: no limit).
+    seconds : float or None
+        Wall time left (None: no limit).
+    """
+
+    memory_bytes: float | None = None
+    seconds: float | None = None
+
+
 @dataclass(frozen=True, eq=False)
 class BakeTarget:
     """What `Technique.bake` bakes: one mesh's geometry with its scattering material, or (`MATERIAL`
@@ -244,6 +262,8 @@ class BakeTarget:
         The mesh's atlas when the technique `needs_atlas`, else None.
     atlas_padding : int
         The atlas's padding in texels (with `atlas`).
+    budget : Budget or None
+        What the asset may still spend (None: no limits); not part of the stage's key.
     """
 
     material: Material
@@ -252,6 +272,7 @@ class BakeTarget:
     primitives: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
     atlas: Atlas | None = None
     atlas_padding: int = 0
+    budget: Budget | None = None
 
 
 @dataclass(frozen=True, eq=False)

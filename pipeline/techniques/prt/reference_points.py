@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sssbake.pipeline.core.integer_keys import unique_keys
 from sssbake.pipeline.core.surface import area_weighted_normals
 from sssbake.pipeline.mesh.simplify import Simplified, simplify
 
@@ -290,7 +291,8 @@ def best_fit_triangles(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints,
     owner = np.repeat(np.repeat(np.arange(n), 3), per)
     local = np.arange(per.sum()) - np.repeat(np.cumsum(per) - per, per)
     candidate = incident[np.repeat(starts[corner_of], per) + local] // 3
-    pairs = np.unique(owner * len(tri) + candidate)  # sorted by vertex, duplicates gone
+    key = owner * len(tri) + candidate
+    pairs = key[unique_keys(key, n * len(tri))[0]]  # sorted by vertex, duplicates gone
     owner, candidate = pairs // len(tri), pairs % len(tri)
     own = _is_reference(refs)
     keep = ~own[owner]
@@ -441,14 +443,17 @@ def _fit(q: np.ndarray, q_ref: np.ndarray, vertices: np.ndarray, triangles: np.n
     rows_q = _vertex_rows(q)
     rows_ref = np.ascontiguousarray(_vertex_rows(q_ref), dtype=np.float64)
     corners = triangles[which]
-    pair, back = np.unique((vertices[:, None].astype(np.int64) * r + corners).ravel(), return_inverse=True)
-    qr = _dots(rows_q, pair // r, rows_ref, pair % r)[back.ravel()].reshape(m, 3)  # ⟨q_v, r_k⟩
-    tri, tri_back = np.unique(which, return_inverse=True)
-    t = triangles[tri]
-    r00, r01, r02, r11, r12, r22 = (_dots(rows_ref, t[:, k], rows_ref, t[:, l])[tri_back.ravel()]
+    key = (vertices[:, None].astype(np.int64) * r + corners).ravel()
+    first, back = unique_keys(key, (int(vertices.max(initial=0)) + 1) * r)
+    pair = key[first]
+    qr = _dots(rows_q, pair // r, rows_ref, pair % r)[back].reshape(m, 3)  # ⟨q_v, r_k⟩
+    first, tri_back = unique_keys(which, len(triangles))
+    t = triangles[which[first]]
+    r00, r01, r02, r11, r12, r22 = (_dots(rows_ref, t[:, k], rows_ref, t[:, l])[tri_back]
                                     for k, l in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
-    vert, vert_back = np.unique(vertices, return_inverse=True)
-    qq = _dots(rows_q, vert, rows_q, vert)[vert_back.ravel()]
+    first, vert_back = unique_keys(vertices, int(vertices.max(initial=0)) + 1)
+    vert = vertices[first]
+    qq = _dots(rows_q, vert, rows_q, vert)[vert_back]
     # With a_k = r_k - r_2 and target q - r_2: g = ⟨a_k, a_l⟩, b = ⟨a_k, target⟩, rest = |target|².
     g = np.empty((m, 2, 2))
     g[:, 0, 0] = r00 - 2.0 * r02 + r22

@@ -7,8 +7,10 @@ from dataclasses import replace
 
 import numpy as np
 
+from sssbake.pipeline.core.dipole import DipoleParams
 from sssbake.pipeline.core.directions import direction_set
 from sssbake.pipeline.core.materials import Material
+from sssbake.pipeline.core.scatter_operator import scatter_plan
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.baked import VertexAttribute
 from sssbake.pipeline.techniques.prt.compress import (
@@ -18,34 +20,50 @@ from sssbake.pipeline.techniques.prt.compress import (
     decode_at_directions,
 )
 from sssbake.pipeline.techniques.prt.data import PrtData
+from sssbake.pipeline.techniques.prt.forecast import check_budget, prt_forecast
 from sssbake.pipeline.techniques.prt.layout import prt_tables, prt_vertex_attributes
 from sssbake.pipeline.techniques.prt.options import PrtOptions
 from sssbake.pipeline.techniques.prt.precompute import PRT_PRECOMPUTE_DEFAULTS, precompute_prt
-from sssbake.pipeline.techniques.technique import BakeTarget, TechniqueBake
+from sssbake.pipeline.techniques.technique import BakeTarget, Budget, TechniqueBake
 
 #: Vertices decoded at once for the compression error (3 · 32768 · K float64: 157 MB at K = 200).
 ERROR_CHUNK = 32768
 
 
 def bake_prt(surface: Surface, mm_per_unit: float, material: Material, directions: int,
-             energy_dropped: float, compress: PrtCompressOptions) -> TechniqueBake:
+             energy_dropped: float, compress: PrtCompressOptions, budget: Budget | None = None) -> TechniqueBake:
     """Run the prt technique on one welded surface.
+
+    The gather's hierarchy is planned and its cost forecast first (`forecast.prt_forecast`): over
+    `budget`, ValueError names the knobs that would fit, before the gather is built.
 
     Returns
     -------
     TechniqueBake
         ``data``: the `PrtData`; ``tables``: `prt_tables`; ``report``: seconds per step, gather
-        radius and dropped fraction, bytes per vertex by block, and the compression error of q
-        (rms and max, relative to the largest q).
+        radius and dropped fraction, bytes per vertex by block, the compression error of q (rms
+        and max, relative to the largest q) and the forecast.
     """
     t = time.perf_counter()
     ds = direction_set(directions)
     scatter = replace(PRT_PRECOMPUTE_DEFAULTS.scatter, energy_dropped=energy_dropped)
+    x, params = surface.positions * mm_per_unit, DipoleParams.from_material(material)
+    plan = scatter_plan(x, surface.faces, surface.normals, params, scatter)
+    t_forecast = time.perf_counter()
+    forecast = prt_forecast(plan, directions)
+    check_budget(forecast, budget, plan, directions, energy_dropped, x, surface.faces, surface.normals, params)
+    t_build = time.perf_counter()
+    operator = plan.build()
+    del plan  # its pair lists and near field, before q is allocated
+    t_gather = time.perf_counter()
     integrals = precompute_prt(surface, mm_per_unit, material, ds.directions,
-                               replace(PRT_PRECOMPUTE_DEFAULTS, scatter=scatter))
+                               replace(PRT_PRECOMPUTE_DEFAULTS, scatter=scatter), operator)
+    del operator
     t_compress = time.perf_counter()
     prt = compress_prt(integrals.q, ds, surface.positions, surface.faces, material.eta, compress)
-    seconds = {**integrals.seconds, "compress": time.perf_counter() - t_compress}
+    seconds = {"plan": t_forecast - t, "forecast": t_build - t_forecast, "operator": t_gather - t_build,
+               "visibility": integrals.seconds["visibility"], "gather": integrals.seconds["gather"],
+               "compress": time.perf_counter() - t_compress}
     squares, largest = compression_error(prt, integrals.q)
     peak = max(float(integrals.q.max()), 1e-300)
     report = {
@@ -67,6 +85,7 @@ def bake_prt(surface: Surface, mm_per_unit: float, material: Material, direction
         "bytesPerVertex": bytes_per_vertex(prt),
         "seconds": {k: round(v, 4) for k, v in seconds.items()} | {"total": round(time.perf_counter() - t, 4)},
         "gather": {k: v for k, v in integrals.stats.items() if k in ("entries", "operator_bytes", "levels", "cell_mm")},
+        "forecast": forecast.to_json(),
     }
     return TechniqueBake(prt, prt_tables(prt), report)
 
@@ -101,7 +120,7 @@ class PrtStage:
     def bake(self, target: BakeTarget, options: PrtOptions) -> TechniqueBake:
         compress = options.compress()
         baked = bake_prt(target.surface, target.mm_per_unit, target.material, options.directions,
-                         options.energy_dropped, compress)
+                         options.energy_dropped, compress, target.budget)
         total = baked.report["bytesPerVertex"]["total"]
         if compress.byte_budget is None or total <= compress.byte_budget:
             return baked

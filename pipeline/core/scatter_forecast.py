@@ -1,0 +1,115 @@
+"""What a scatter operator will hold and cost, before it is built: the rows of an evenly spread
+sample of its targets built for real (`ScatterPlan.matrices`), timed, and scaled to every target.
+
+Vertices are in Morton order inside the plan, so runs of consecutive targets taken every k-th
+run spread over the whole surface, and the sample's entries per target are the whole's; a run's
+targets read much the same sources, as in the whole build, so the time per target is the whole's too (the tests hold the forecast to the built
+operator). The clusters' moments (`ScatterOperator.apply`) cost per source, not per target: they
+are timed whole.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from sssbake.pipeline.core.scatter_operator import ScatterPlan
+
+#: Share of the targets built for the forecast.
+SAMPLE = 0.02
+#: Most consecutive targets (in Morton order) per run of the sample.
+RUN = 64
+#: Fewest runs.
+RUNS = 64
+#: At least this many targets (all of a smaller surface: the forecast is then exact).
+MIN_SAMPLE = 2000
+
+
+@dataclass(frozen=True)
+class ScatterForecast:
+    """Attributes
+    ----------
+    entries : int
+        Stored entries over all channels and matrices.
+    operator_bytes : int
+        The operator's matrices and index arrays (`ScatterOperator.nbytes`).
+    build_peak_bytes : int
+        The most the build holds at once: every matrix built so far plus the one being assembled
+        twice (its chunks and its final arrays).
+    build_seconds : float
+        Building the entries (the plan's own time excluded).
+    apply_seconds : float
+        Per signal gathered (`ScatterOperator.apply`'s products and moments).
+    sampled : int
+        Targets built.
+    """
+
+    entries: int
+    operator_bytes: int
+    build_peak_bytes: int
+    build_seconds: float
+    apply_seconds: float
+    sampled: int
+
+
+def scatter_forecast(plan: ScatterPlan, fraction: float = SAMPLE) -> ScatterForecast:
+    """Parameters
+    ----------
+    plan : ScatterPlan
+    fraction : float
+        Share of the targets to build, in (0, 1] (at least `MIN_SAMPLE` of them).
+    """
+    if not 0.0 < fraction <= 1.0:
+        raise ValueError(f"scatter forecast: fraction must be in (0, 1], got {fraction}")
+    n = len(plan.positions)
+    step = max(1, min(int(round(1.0 / fraction)), n // MIN_SAMPLE))
+    # runs of consecutive targets, evenly spaced: neighbours share sources as in the whole build;
+    # at least RUNS of them, so that the sample spreads over the surface
+    run = max(1, min(RUN, n // (step * RUNS)))
+    first = np.arange(0, n, run * step)
+    rows = (first[:, None] + np.arange(run)).ravel()
+    rows = rows[rows < n]
+    scale = n / len(rows)
+    t = time.perf_counter()
+    near, levels = plan.matrices(rows)  # per target: the plan holds what the clusters cost
+    build = (time.perf_counter() - t) * scale
+    # Built coarsest level first, the near pairs last (`ScatterPlan.matrices`).
+    matrices = [f.matrix for f in levels[::-1]] + [near]
+    entries = [m.nnz * scale for m in matrices]
+    index_bytes = 4 if sum(entries) < 2**31 else 8
+    sizes = [e * (near.dtype.itemsize + index_bytes) + (3 * n + 1) * index_bytes for e in entries]
+    held, peak = 0.0, 0.0
+    for size in sizes:
+        peak = max(peak, held + 2.0 * size)
+        held += size
+    operator = held + n * (8 + 3 * 8) + sum(f.starts.nbytes for f in levels)  # order, source_area, starts
+    return ScatterForecast(int(round(sum(entries))), int(operator), int(max(peak, operator)), build,
+                           _apply_seconds(plan, near, levels, scale), len(rows))
+
+
+def _apply_seconds(plan: ScatterPlan, near: sp.csr_matrix, levels: list, scale: float) -> float:
+    """Seconds per signal of `ScatterOperator.apply`: the sample's products scaled to every
+    target, the moments of every cluster as they are."""
+    n, block = len(plan.positions), plan.options.block
+    signal = np.random.default_rng(0).random((n, block))
+    out = np.empty((3, n, block), dtype=near.dtype)
+    t = time.perf_counter()
+    # per source and signal, as `ScatterOperator.apply` does them: the signal in internal order,
+    # each channel's cluster moments, the result back in the caller's order
+    e = signal[plan.order].astype(near.dtype)
+    moments = [np.add.reduceat(e * plan.area[:, None], f.starts, axis=0) for f in levels for _ in range(3)]
+    out[:, plan.order] = 0.0
+    whole = time.perf_counter() - t
+    runs = []
+    for _ in range(3):  # the median of three: the sample's products take a few milliseconds
+        t = time.perf_counter()
+        near @ e
+        for f, m in zip(levels, moments[::3]):
+            f.matrix @ np.concatenate([m, m, m])
+        runs.append((time.perf_counter() - t) * scale)
+    # the apply runs its blocks on `threads` threads, at most one a core
+    return (whole + float(np.median(runs))) / block / max(1, min(plan.options.threads, os.cpu_count() or 1))

@@ -1,0 +1,105 @@
+"""prt: what its bake will hold and take, forecast before its gather is built, checked against
+what the asset may still spend (`technique.Budget`).
+
+prt is the one stage whose memory grows faster than the mesh: every level of its gather's
+hierarchy adds ~75 clusters per vertex, and the levels grow as log n (benchmarks/README.md#bake-scaling).
+The forecast builds 2 % of the gather's rows (`scatter_forecast`) and adds the light integrals q
+and the gather's temporaries. Over budget, the error names the knobs that bound it, each with its
+own forecast: fewer light directions (q), a larger dropped energy (fewer levels and pairs).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+
+from sssbake.pipeline.core.dipole import DipoleParams
+from sssbake.pipeline.core.scatter_forecast import scatter_forecast
+from sssbake.pipeline.core.scatter_operator import ScatterPlan, scatter_plan
+from sssbake.pipeline.techniques.technique import Budget
+
+#: Larger dropped energies the error tries when the gather alone does not fit (each one plans
+#: the hierarchy again: a few seconds per 100k vertices).
+ENERGY_STEPS = (0.03, 0.1, 0.3)
+#: Fewer light directions the error tries when q does not fit.
+DIRECTION_STEPS = (100, 50)
+
+_GIB = 2.0**30
+
+
+@dataclass(frozen=True)
+class PrtForecast:
+    """Attributes
+    ----------
+    peak_bytes : int
+        The stage's most at once: the gather's build, or the gather with q and a block's
+        temporaries on each thread.
+    seconds : float
+        Building the gather and gathering the K directions (the plan's time, the visibility and
+        the compression not included).
+    entries : int
+        The gather's stored entries.
+    """
+
+    peak_bytes: int
+    seconds: float
+    entries: int
+
+    def to_json(self) -> dict:
+        return {**asdict(self), "peak_gib": round(self.peak_bytes / _GIB, 3), "seconds": round(self.seconds, 2)}
+
+
+def prt_forecast(plan: ScatterPlan, directions: int) -> PrtForecast:
+    """The forecast for gathering `directions` light directions through `plan`'s gather."""
+    f = scatter_forecast(plan)
+    n = len(plan.positions)
+    item = 4 if plan.options.float32 else 8
+    q = 3 * n * directions * item
+    block = min(plan.options.block, directions)
+    # per thread: the block's signal (float64 and cast), its result and its moments
+    temporaries = min(plan.options.threads, os.cpu_count() or 1) * n * block * (8 + item + 2 * 3 * item)
+    peak = max(f.build_peak_bytes, f.operator_bytes + q + temporaries)
+    return PrtForecast(int(peak), f.build_seconds + directions * f.apply_seconds, f.entries)
+
+
+def check_budget(forecast: PrtForecast, budget: Budget | None, plan: ScatterPlan, directions: int,
+                 energy_dropped: float, positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray,
+                 params: DipoleParams) -> None:
+    """Raise ValueError (one line: the forecast, the limit, the knobs that would fit) when the
+    forecast is over `budget`."""
+    if budget is None:
+        return
+    over_memory = budget.memory_bytes is not None and forecast.peak_bytes > budget.memory_bytes
+    over_time = budget.seconds is not None and forecast.seconds > budget.seconds
+    if not (over_memory or over_time):
+        return
+    what = (f"{forecast.peak_bytes / _GIB:.1f} GiB, over the {budget.memory_bytes / _GIB:.3g} GiB this asset has left "
+            "under --asset-memory" if over_memory else
+            f"{forecast.seconds:.0f} s, over the {budget.seconds:.0f} s this asset has left under --asset-timeout")
+    fits = []
+
+    def fit(f: PrtForecast) -> bool:
+        return ((budget.memory_bytes is None or f.peak_bytes <= budget.memory_bytes)
+                and (budget.seconds is None or f.seconds <= budget.seconds))
+
+    for k in (k for k in DIRECTION_STEPS if k < directions):
+        f = prt_forecast(plan, k)
+        if fit(f):
+            fits.append(f"--prt-directions {k} ({_brief(f)})")
+            break
+    for e in (e for e in ENERGY_STEPS if e > energy_dropped):
+        options = replace(plan.options, energy_dropped=e)
+        f = prt_forecast(scatter_plan(positions_mm, faces, normals, params, options), directions)
+        if fit(f):
+            fits.append(f"--prt-energy-dropped {e:g} ({_brief(f)})")
+            break
+    knobs = ", or pass " + " or ".join(fits) if fits else "; no fewer directions or larger dropped energy tried fits"
+    raise ValueError(f"prt: its gather's {forecast.entries / 1e6:.0f}M entries are forecast to need {what}: "
+                     f"raise it{knobs}")
+
+
+def _brief(f: PrtForecast) -> str:
+    return f"about {f.peak_bytes / _GIB:.1f} GiB, {f.seconds:.0f} s"
+
