@@ -37,10 +37,6 @@ BAND = 100
 OVERLAP = 0.15
 #: Eigenvalues closer than this (relative) count as one multiplet.
 MULTIPLET = 1e-6
-#: Lanczos vectors per band beyond its pairs: ARPACK's default (twice the pairs) spends more time
-#: re-orthogonalising than the restarts that fewer vectors need (benchmarks/README.md#spectral-eigensolve).
-NCV_SHARE = 0.25
-NCV_MARGIN = 20
 #: Relative accuracy of the eigenvalues (ARPACK's default, machine precision, costs more time
 #: for no visible change: benchmarks/README.md#spectral-eigensolve).
 TOLERANCE = 1e-8
@@ -101,13 +97,9 @@ def _banded(a: sp.csc_matrix, count: int, area: float) -> tuple[np.ndarray, np.n
     band = min(n - 2, int(np.ceil(count / np.ceil(count / BAND) * (1.0 + OVERLAP))) + 8)
     solves = 0
     while len(values) < count:
-        # A - σI is symmetric: a symmetric ordering with pivots kept on the diagonal where they can
-        # be holds half COLAMD's fill, and its solves take half the time
-        lu = sla.splu((a - shift * identity).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1,
-                      options={"SymmetricMode": True})
+        lu = sla.splu((a - shift * identity).tocsc(), permc_spec="COLAMD")
         op = sla.LinearOperator(a.shape, matvec=lu.solve, dtype=np.float64)
-        lam, psi = sla.eigsh(a, k=band, sigma=shift, which="LM", OPinv=op, tol=TOLERANCE,
-                             ncv=min(n - 1, band + max(NCV_MARGIN, int(NCV_SHARE * band))))
+        lam, psi = sla.eigsh(a, k=band, sigma=shift, which="LM", OPinv=op, tol=TOLERANCE)
         solves += 1
         order = np.argsort(lam)
         lam, psi = lam[order], psi[:, order]

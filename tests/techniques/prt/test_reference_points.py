@@ -230,3 +230,20 @@ def test_fit_inner_products_of_float32_signals_are_float64_sums():
     vertex_major = np.ascontiguousarray(_vertex_rows(q))
     np.testing.assert_allclose(_dots(vertex_major, i, vertex_major, j), exact, rtol=1e-13)
     np.testing.assert_allclose(_dots(_vertex_rows(q), i, _vertex_rows(q.astype(np.float64)), j), exact, rtol=1e-13)
+
+
+def test_fit_inner_products_on_threads_equal_the_serial_sums(monkeypatch):
+    # chunks summed on threads write their own slices: the same sums, bit for bit
+    from sssbake.pipeline.techniques.prt import reference_points as rp
+
+    rng = np.random.default_rng(4)
+    rows = np.ascontiguousarray(rp._vertex_rows(rng.random((3, 400, 20)).astype(np.float32)))
+    i, j = rng.integers(0, 400, 5000), rng.integers(0, 400, 5000)
+    monkeypatch.setattr(rp, "FIT_ELEMENTS", 60 * 37)  # 37 rows a chunk: 136 chunks
+    monkeypatch.setattr(rp, "THREADS", 1)
+    serial = rp._dots(rows, i, rows, j)
+    monkeypatch.setattr(rp, "THREADS", 3)
+    threaded = rp._dots(rows, i, rows, j)
+    assert np.array_equal(serial, threaded)
+    exact = np.einsum("ick,ick->i", rows[i].astype(np.float64), rows[j].astype(np.float64))
+    np.testing.assert_allclose(threaded, exact, rtol=1e-13)
