@@ -478,12 +478,15 @@ class _Clusters:
     (6, m: xx, yy, zz, xy, xz, yz) and its trace (m,), and per target cell the clusters it reads
     (`_lists`: ptr, lists)."""
 
-    count: int
     centroid: np.ndarray
     spread: np.ndarray
     trace: np.ndarray
     ptr: np.ndarray
     lists: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return self.centroid.shape[1]
 
     @staticmethod
     def build(x: np.ndarray, area: np.ndarray, nrm: np.ndarray, starts: np.ndarray, cell_of: np.ndarray,
@@ -504,7 +507,7 @@ class _Clusters:
         # Clusters without area gather nothing: leave them out.
         # int32: the plan keeps every level's lists until the build (cells are far fewer than 2^31)
         ptr, lists = _lists(pairs[cluster_area[pairs[:, 1]] > 0].astype(np.int32), m)
-        return _Clusters(m, centroid, spread, spread[0] + spread[1] + spread[2], ptr, lists)
+        return _Clusters(centroid, spread, spread[0] + spread[1] + spread[2], ptr, lists)
 
 
 class _Builder:
@@ -513,6 +516,7 @@ class _Builder:
     def __init__(self, params: DipoleParams, radius: np.ndarray, dtype, threads: int, field: NearField,
                  closest: float = 0.0):
         self.params, self.radius, self.dtype, self.threads, self.field = params, radius, dtype, threads, field
+        self.positions_t = field.positions.T.copy()  # (3, n): the far entries read coordinates apart
         self.table = _KernelTable.build(params, closest, float(radius.max())) if closest > 0 else None
 
     def near(self, rows, per_row, source_of) -> sp.csr_matrix:
@@ -544,7 +548,7 @@ class _Builder:
         centroid, spread, trace, ptr, lists = (clusters.centroid, clusters.spread, clusters.trace, clusters.ptr,
                                                clusters.lists)
         keys = cell_of[rows]
-        xt = self.field.positions.T.copy()
+        xt = self.positions_t
         table = self.table
 
         def entries(j0, j1):

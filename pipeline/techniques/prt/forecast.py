@@ -11,12 +11,12 @@ own forecast: fewer light directions (q), a larger dropped energy (fewer levels 
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from sssbake.pipeline.core.dipole import DipoleParams
-from sssbake.pipeline.core.scatter_forecast import scatter_forecast
+from sssbake.pipeline.core.scatter_forecast import ScatterForecast, scatter_forecast
 from sssbake.pipeline.core.scatter_operator import ScatterPlan, scatter_plan
 from sssbake.pipeline.techniques.technique import Budget
 
@@ -41,19 +41,30 @@ class PrtForecast:
         the compression not included).
     entries : int
         The gather's stored entries.
+    directions : int
+        K.
+    gather : ScatterForecast
+        The gather's own forecast (K does not change it).
     """
 
     peak_bytes: int
     seconds: float
     entries: int
+    directions: int
+    gather: ScatterForecast = field(repr=False)
 
     def to_json(self) -> dict:
-        return {**asdict(self), "peak_gib": round(self.peak_bytes / _GIB, 3), "seconds": round(self.seconds, 2)}
+        return {"peak_bytes": self.peak_bytes, "seconds": round(self.seconds, 2), "entries": self.entries,
+                "peak_gib": round(self.peak_bytes / _GIB, 3)}
 
 
 def prt_forecast(plan: ScatterPlan, directions: int) -> PrtForecast:
     """The forecast for gathering `directions` light directions through `plan`'s gather."""
-    f = scatter_forecast(plan)
+    return _with_directions(scatter_forecast(plan), plan, directions)
+
+
+def _with_directions(f: ScatterForecast, plan: ScatterPlan, directions: int) -> PrtForecast:
+    """The gather's forecast `f` with q and the gather's temporaries for `directions` directions."""
     n = len(plan.positions)
     item = 4 if plan.options.float32 else 8
     q = 3 * n * directions * item
@@ -61,14 +72,14 @@ def prt_forecast(plan: ScatterPlan, directions: int) -> PrtForecast:
     # per thread: the block's signal (float64 and cast), its result and its moments
     temporaries = min(plan.options.threads, os.cpu_count() or 1) * n * block * (8 + item + 2 * 3 * item)
     peak = max(f.build_peak_bytes, f.operator_bytes + q + temporaries)
-    return PrtForecast(int(peak), f.build_seconds + directions * f.apply_seconds, f.entries)
+    return PrtForecast(int(peak), f.build_seconds + directions * f.apply_seconds, f.entries, directions, f)
 
 
-def check_budget(forecast: PrtForecast, budget: Budget | None, plan: ScatterPlan, directions: int,
-                 energy_dropped: float, positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray,
-                 params: DipoleParams) -> None:
-    """Raise ValueError (one line: the forecast, the limit, the knobs that would fit) when the
-    forecast is over `budget`."""
+def check_budget(forecast: PrtForecast, budget: Budget | None, plan: ScatterPlan, positions_mm: np.ndarray,
+                 faces: np.ndarray, normals: np.ndarray, params: DipoleParams) -> None:
+    """Raise ValueError (one line: the forecast, the limit, the knobs that would fit) when
+    `forecast` (of `plan`'s gather, planned from `positions_mm`, `faces`, `normals` and `params`)
+    is over `budget`."""
     if budget is None:
         return
     over_memory = budget.memory_bytes is not None and forecast.peak_bytes > budget.memory_bytes
@@ -84,14 +95,14 @@ def check_budget(forecast: PrtForecast, budget: Budget | None, plan: ScatterPlan
         return ((budget.memory_bytes is None or f.peak_bytes <= budget.memory_bytes)
                 and (budget.seconds is None or f.seconds <= budget.seconds))
 
-    for k in (k for k in DIRECTION_STEPS if k < directions):
-        f = prt_forecast(plan, k)
+    for k in (k for k in DIRECTION_STEPS if k < forecast.directions):
+        f = _with_directions(forecast.gather, plan, k)
         if fit(f):
             fits.append(f"--prt-directions {k} ({_brief(f)})")
             break
-    for e in (e for e in ENERGY_STEPS if e > energy_dropped):
+    for e in (e for e in ENERGY_STEPS if e > plan.options.energy_dropped):
         options = replace(plan.options, energy_dropped=e)
-        f = prt_forecast(scatter_plan(positions_mm, faces, normals, params, options), directions)
+        f = prt_forecast(scatter_plan(positions_mm, faces, normals, params, options), forecast.directions)
         if fit(f):
             fits.append(f"--prt-energy-dropped {e:g} ({_brief(f)})")
             break

@@ -51,7 +51,7 @@ def bake_prt(surface: Surface, mm_per_unit: float, material: Material, direction
     plan = scatter_plan(x, surface.faces, surface.normals, params, scatter)
     t_forecast = time.perf_counter()
     forecast = prt_forecast(plan, directions)
-    check_budget(forecast, budget, plan, directions, energy_dropped, x, surface.faces, surface.normals, params)
+    check_budget(forecast, budget, plan, x, surface.faces, surface.normals, params)
     t_build = time.perf_counter()
     operator = plan.build()
     del plan  # its pair lists and near field, before q is allocated

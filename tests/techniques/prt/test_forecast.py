@@ -62,6 +62,6 @@ def test_the_error_offers_the_knob_that_fits():
     # room for 100 directions, not for 200
     budget = Budget(memory_bytes=0.5 * (need.peak_bytes + fewer.peak_bytes))
     with pytest.raises(ValueError, match=r"--prt-directions 100 \(about"):
-        check_budget(need, budget, plan, 200, 0.01, x, s.faces, s.normals, params)
-    check_budget(need, Budget(memory_bytes=need.peak_bytes), plan, 200, 0.01, x, s.faces, s.normals, params)
-    check_budget(need, None, plan, 200, 0.01, x, s.faces, s.normals, params)
+        check_budget(need, budget, plan, x, s.faces, s.normals, params)
+    check_budget(need, Budget(memory_bytes=need.peak_bytes), plan, x, s.faces, s.normals, params)
+    check_budget(need, None, plan, x, s.faces, s.normals, params)
