@@ -213,10 +213,10 @@ def _view(args) -> int:
     check_glb(args.file)
     inspect_glb(args.file)  # resolves every table and attribute: stale data is refused here, not drawn
     server = ViewServer(args.file, args.port)
-    print(f"viewing {args.file} at {server.url} (Ctrl-C to stop)", flush=True)
-    if not args.no_open:
-        webbrowser.open(server.url)
-    try:
+    try:  # from the URL line on: a Ctrl-C as soon as it is printed still closes the server
+        print(f"viewing {args.file} at {server.url} (Ctrl-C to stop)", flush=True)
+        if not args.no_open:
+            webbrowser.open(server.url)
         threading.Event().wait()  # the server runs in its own thread until Ctrl-C
     except KeyboardInterrupt:
         pass

@@ -1,6 +1,7 @@
 """`sssbake view`'s server: loopback only, the page and the one .glb, nothing else from the disk;
 the command's one-line errors."""
 
+import contextlib
 import http.client
 import json
 import re
@@ -164,21 +165,48 @@ def test_missing_three_and_taken_port(tmp_path, served):
         ViewServer(glb, port, folders=folders)
 
 
+@contextlib.contextmanager
+def _view_command(glb: Path):
+    """`sssbake view glb --no-open` running: (process, its URL)."""
+    # A runner started in the background ignores SIGINT and its children inherit that (Python keeps
+    # an inherited ignore): handled here while the child starts, SIGINT is default in the child.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        # -X faulthandler: if it hangs, SIGABRT makes it print every thread's stack for the failure
+        proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-m", "sssbake.pipeline.cli", "view", str(glb),
+                                 "--no-open"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    try:
+        yield proc, re.search(r"http://127\.0\.0\.1:\d+/", proc.stdout.readline()).group(0)
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def _ctrl_c(proc: subprocess.Popen) -> None:
+    """Ctrl-C: it must exit 0 at once and print nothing."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        code = proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)
+        raise AssertionError(f"view did not stop on Ctrl-C; its threads:\n{proc.communicate(timeout=20)[1]}") from None
+    assert code == 0
+    assert proc.stderr.read() == ""
+
+
 def test_the_command_serves_until_ctrl_c(tmp_path):
     glb = _glb(tmp_path / "x.glb", _SSS, b"\7" * 8)
-    proc = subprocess.Popen([sys.executable, "-m", "sssbake.pipeline.cli", "view", str(glb), "--no-open"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        line = proc.stdout.readline()
-        url = re.search(r"http://127\.0\.0\.1:\d+/", line).group(0)
+    with _view_command(glb) as (proc, url):
         with urllib.request.urlopen(url + "model.glb", timeout=10) as response:
             assert response.read() == glb.read_bytes()
             assert response.headers["Content-Disposition"] == "inline; filename*=UTF-8''x.glb"
         with urllib.request.urlopen(url + "three/build/three.core.js", timeout=10) as response:
             assert response.read() == (REPO / "node_modules" / "three" / "build" / "three.core.js").read_bytes()
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=20) == 0
-        assert proc.stderr.read() == ""
-    finally:
-        proc.kill()
-        proc.wait()
+        _ctrl_c(proc)
+
+
+def test_a_ctrl_c_as_the_url_is_printed_stops_it_cleanly(tmp_path):
+    with _view_command(_glb(tmp_path / "x.glb", _SSS, b"\7" * 8)) as (proc, _):
+        _ctrl_c(proc)
