@@ -3,14 +3,13 @@ sample of its targets built for real (`ScatterPlan.matrices`), timed, and scaled
 
 Vertices are in Morton order inside the plan, so runs of consecutive targets taken every k-th
 run spread over the whole surface, and the sample's entries per target are the whole's; a run's
-targets read much the same sources, as in the whole build, so the time per target is the whole's too (the tests hold the forecast to the built
-operator). The clusters' moments (`ScatterOperator.apply`) cost per source, not per target: they
+targets read much the same sources, as in the whole build, so the time per target is the whole's
+too (the tests hold the forecast to the built operator). The clusters' moments (`ScatterOperator.apply`) cost per source, not per target: they
 are timed whole.
 """
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass
 
@@ -111,5 +110,5 @@ def _apply_seconds(plan: ScatterPlan, near: sp.csr_matrix, levels: list, scale: 
         for f, m in zip(levels, moments[::3]):
             f.matrix @ np.concatenate([m, m, m])
         runs.append((time.perf_counter() - t) * scale)
-    # the apply runs its blocks on `threads` threads, at most one a core
-    return (whole + float(np.median(runs))) / block / max(1, min(plan.options.threads, os.cpu_count() or 1))
+    # the apply runs its blocks on its threads
+    return (whole + float(np.median(runs))) / block / plan.workers

@@ -37,6 +37,7 @@ that lies close together.
 
 from __future__ import annotations
 
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -270,7 +271,7 @@ class ScatterPlan:
     ----------
     order : (n,) int64
         Caller's index of each internal vertex.
-    positions, normals : (n, 3) float64
+    positions : (n, 3) float64
         Internal order, millimetres.
     area : (n,) float64
         ΔA of each internal vertex (mm²).
@@ -296,7 +297,6 @@ class ScatterPlan:
 
     order: np.ndarray
     positions: np.ndarray
-    normals: np.ndarray
     area: np.ndarray
     total: np.ndarray
     radius_mm: np.ndarray
@@ -310,6 +310,11 @@ class ScatterPlan:
     builder: "_Builder"
     stats: dict
     options: ScatterOptions
+
+    @property
+    def workers(self) -> int:
+        """Threads the forecasts count as working at once: `options.threads`, at most one a core."""
+        return min(self.options.threads, os.cpu_count() or 1)
 
     def matrices(self, rows: np.ndarray) -> tuple[sp.csr_matrix, list]:
         """The rows of the targets `rows` (T,) internal indices: (near (3T, n), FarLevel per level with
@@ -389,8 +394,8 @@ def scatter_plan(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarra
     size = np.diff(np.r_[starts[0], n])
     per_cell = np.bincount(pairs[:, 0], weights=size[pairs[:, 1]], minlength=len(starts[0])).astype(np.int64)
     stats = dict(cell_mm=float(h0), levels=top + 1, separation=a, seconds=time.perf_counter() - t0)
-    return ScatterPlan(order, x, nrm, area, total, radius, dropped, starts, cell_of, far, near_ptr, near_lists,
-                       per_cell, build, stats, options)
+    return ScatterPlan(order, x, area, total, radius, dropped, starts, cell_of, far, near_ptr, near_lists, per_cell,
+                       build, stats, options)
 
 
 def _checked(positions_mm, faces, normals, options: ScatterOptions):

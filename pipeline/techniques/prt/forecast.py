@@ -10,7 +10,6 @@ own forecast: fewer light directions (q), a larger dropped energy (fewer levels 
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -70,7 +69,7 @@ def _with_directions(f: ScatterForecast, plan: ScatterPlan, directions: int) -> 
     q = 3 * n * directions * item
     block = min(plan.options.block, directions)
     # per thread: the block's signal (float64 and cast), its result and its moments
-    temporaries = min(plan.options.threads, os.cpu_count() or 1) * n * block * (8 + item + 2 * 3 * item)
+    temporaries = plan.workers * n * block * (8 + item + 2 * 3 * item)
     peak = max(f.build_peak_bytes, f.operator_bytes + q + temporaries)
     return PrtForecast(int(peak), f.build_seconds + directions * f.apply_seconds, f.entries, directions, f)
 
@@ -80,35 +79,32 @@ def check_budget(forecast: PrtForecast, budget: Budget | None, plan: ScatterPlan
     """Raise ValueError (one line: the forecast, the limit, the knobs that would fit) when
     `forecast` (of `plan`'s gather, planned from `positions_mm`, `faces`, `normals` and `params`)
     is over `budget`."""
-    if budget is None:
-        return
-    over_memory = budget.memory_bytes is not None and forecast.peak_bytes > budget.memory_bytes
-    over_time = budget.seconds is not None and forecast.seconds > budget.seconds
-    if not (over_memory or over_time):
-        return
-    what = (f"{forecast.peak_bytes / _GIB:.1f} GiB, over the {budget.memory_bytes / _GIB:.3g} GiB this asset has left "
-            "under --asset-memory" if over_memory else
-            f"{forecast.seconds:.0f} s, over the {budget.seconds:.0f} s this asset has left under --asset-timeout")
-    fits = []
 
-    def fit(f: PrtForecast) -> bool:
+    def fits(f: PrtForecast) -> bool:
         return ((budget.memory_bytes is None or f.peak_bytes <= budget.memory_bytes)
                 and (budget.seconds is None or f.seconds <= budget.seconds))
 
+    if budget is None or fits(forecast):
+        return
+    over_memory = budget.memory_bytes is not None and forecast.peak_bytes > budget.memory_bytes
+    what = (f"{forecast.peak_bytes / _GIB:.1f} GiB, over the {budget.memory_bytes / _GIB:.3g} GiB this asset has left "
+            "under --asset-memory" if over_memory else
+            f"{forecast.seconds:.0f} s, over the {budget.seconds:.0f} s this asset has left under --asset-timeout")
+    knobs = []
     for k in (k for k in DIRECTION_STEPS if k < forecast.directions):
         f = _with_directions(forecast.gather, plan, k)
-        if fit(f):
-            fits.append(f"--prt-directions {k} ({_brief(f)})")
+        if fits(f):
+            knobs.append(f"--prt-directions {k} ({_brief(f)})")
             break
     for e in (e for e in ENERGY_STEPS if e > plan.options.energy_dropped):
         options = replace(plan.options, energy_dropped=e)
         f = prt_forecast(scatter_plan(positions_mm, faces, normals, params, options), forecast.directions)
-        if fit(f):
-            fits.append(f"--prt-energy-dropped {e:g} ({_brief(f)})")
+        if fits(f):
+            knobs.append(f"--prt-energy-dropped {e:g} ({_brief(f)})")
             break
-    knobs = ", or pass " + " or ".join(fits) if fits else "; no fewer directions or larger dropped energy tried fits"
+    fit = ", or pass " + " or ".join(knobs) if knobs else "; no fewer directions or larger dropped energy tried fits"
     raise ValueError(f"prt: its gather's {forecast.entries / 1e6:.0f}M entries are forecast to need {what}: "
-                     f"raise it{knobs}")
+                     f"raise it{fit}")
 
 
 def _brief(f: PrtForecast) -> str:
