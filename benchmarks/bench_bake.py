@@ -178,8 +178,9 @@ def closed_simplified(source: Path, vertices: int, folder: Path) -> tuple[Path, 
     """`source` simplified to about `vertices` vertices, written to `folder` as PLY; and whether it is closed.
 
     fast-simplification can leave two faces on the same three vertices (a pinched pair, open
-    around it), and lpv refuses open meshes: both faces of each such pair are dropped, then the
-    vertices no face uses.
+    around it), and lpv voxelises a surface that is not closed by the slower winding number
+    (`lpv_grid.voxelise`), which would skew the sweep: both faces of each such pair are dropped,
+    then the vertices no face uses.
     """
     mesh = trimesh.load(source, process=False, force="mesh")
     s = simplify(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces), target_count=2 * vertices)
@@ -220,7 +221,7 @@ def sweep(args) -> None:
                 asset, closed = closed_simplified(source, target, Path(tmp))
             vertices = len(trimesh.load(asset, process=False, force="mesh").vertices)
             note = "" if closed is None else f", simplified from {name}, " + (
-                "closed" if closed else "not closed: lpv refuses it")
+                "closed" if closed else "not closed: lpv takes the winding-number voxelisation")
             print(f"== {size}: {asset.name}, {vertices} vertices{note}", flush=True)
             table[size] = {"asset": str(asset), "vertices": vertices, "closed": closed, "sets": {}}
             for set_name in sets:

@@ -17,7 +17,7 @@ import time
 import numpy as np
 from bench_prt_precompute import DRAGON, SCALE_MM, surface
 
-from sssbake.pipeline.core.dipole import DipoleParams
+from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.core.scatter_operator import scatter_plan
 from sssbake.pipeline.techniques.prt.forecast import prt_forecast
@@ -38,7 +38,7 @@ def main() -> None:
         s = surface(name, args.vertices)
         x = s.positions * SCALE_MM
         t = time.perf_counter()
-        plan = scatter_plan(x, s.faces, s.normals, DipoleParams.from_material(preset("marble")))
+        plan = scatter_plan(x, s.faces, s.normals, profile_for(preset("marble")))
         t_plan = time.perf_counter() - t
         t = time.perf_counter()
         f = prt_forecast(plan, K)

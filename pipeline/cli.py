@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from sssbake.pipeline.config import EMPTY_CONFIG, load_config
-from sssbake.pipeline.core.errors import AssetError, SssbakeError, TradeoffError
+from sssbake.pipeline.core.errors import AssetError, SssbakeError, TradeoffError, VerifyError
+from sssbake.pipeline.core.materials import PROFILE_MODELS
 from sssbake.pipeline.options import BAKE_DEFAULTS, BakeOptions
 from sssbake.pipeline.techniques import registry
 
@@ -30,6 +31,7 @@ def _overrides(args) -> dict:
 
 def _bake(args) -> int:
     from sssbake.pipeline.bake.batch import OutputError, run_batch
+    from sssbake.pipeline.planning.plan import lambert_line
 
     config = load_config(args.config) if args.config else EMPTY_CONFIG
     out = Path(args.out)
@@ -61,6 +63,9 @@ def _bake(args) -> int:
         f"summary in {out / 'batch.json'}",
         file=sys.stderr if args.quiet else sys.stdout,
     )
+    worse = lambert_line(summary["worse_than_lambert"], "on the pilot's subsample")
+    if worse:
+        print(worse, file=sys.stderr if args.quiet else sys.stdout)
     if args.report:
         from sssbake.pipeline.verify.html_report import write_report
 
@@ -118,8 +123,17 @@ def _verify(args) -> int:
     try:
         light = DEFAULT_LIGHT if args.light_dir is None else _vector(args.light_dir, "--light-dir")
         position = None if args.light_pos is None else _vector(args.light_pos, "--light-pos")
-        result = verify_file(args.file, args.technique, light, args.size, args.out, args.frames, position,
-                             args.reference, args.lpv_steps, args.stock_viewer)
+        if args.reference == "volpath":
+            from sssbake.pipeline.verify.volpath import VOLPATH_SIZE, verify_volpath
+
+            if position is not None:
+                raise VerifyError("--reference volpath lights the truth with a lobe around --light-dir, not a point "
+                                  "light")
+            result = verify_volpath(args.file, args.technique, light, args.size or VOLPATH_SIZE, args.spp, args.out,
+                                    args.cache_dir, args.lpv_steps)
+        else:
+            result = verify_file(args.file, args.technique, light, args.size or 512, args.out, args.frames, position,
+                                 args.reference, args.lpv_steps, args.stock_viewer)
     except AssetError as e:  # already "<path>: <problem>"
         print(f"error: {e}", file=sys.stderr)
         return 1
@@ -128,6 +142,8 @@ def _verify(args) -> int:
         return 1
     if args.json:
         print(json.dumps(result))
+    elif args.reference == "volpath":
+        print(_volpath_line(args.file, result))
     else:
         where = (f"point light at {np.round(result['light_pos'], 3).tolist()}" if result["light_pos"] is not None
                  else f"light {np.round(result['light_dir'], 3).tolist()}")
@@ -148,13 +164,31 @@ def _verify(args) -> int:
     return 0
 
 
+def _volpath_line(file: str, r: dict) -> str:
+    """`verify_volpath`'s result as one line of text; each relative RMSE with, in brackets, what is
+    left of it beyond the truth's noise floor."""
+
+    def error(key: str) -> str:
+        return f"{r[key]:.3g} ({r['rmse_relative_denoised'][key]:.3g})"
+
+    truth = "from the cache" if r["truth_cached"] else f"rendered in {r['truth_seconds']:.0f} s"
+    return (f"{file} ({r['technique']} vs Mitsuba {r['mitsuba']} volpath, cos^{r['lobe_exponent']} lobe around "
+            f"{np.round(r['light_dir'], 3).tolist()}, {r['spp']} spp, noise floor {r['noise_floor']:.3g}): relative "
+            f"RMSE (beyond the noise) {error('rmse_relative')}, best-fit scaled {error('rmse_relative_fitted')} "
+            f"(truth = {np.round(r['technique_scale'], 3).tolist()} x {r['technique']}); plain Lambert of the "
+            f"profile's total reflectance {error('rmse_relative_lambert')}, best-fit Lambert "
+            f"{error('rmse_relative_lambert_fitted')}; mirror reflection subtracted from the truth "
+            f"({r['specular_share']:.1%} of its light); truth {truth}; images in {r['pngs']['comparison']} "
+            f"(volpath | {r['technique']} | Lambert | best-fit Lambert)")
+
+
 def _tradeoff(args) -> int:
     from sssbake.pipeline.core.materials import material_from_spec
 
     path = Path(args.input)
     technique = registry.technique(args.technique)
     try:
-        material = material_from_spec(args.material, args.material)
+        material = material_from_spec(args.material, args.material, args.profile)
         if args.scale_mm is None:
             from sssbake.pipeline.mesh.load import load_scene
 
@@ -235,15 +269,14 @@ def _port(text: str) -> int:
     return value
 
 
-def _presets(_args) -> int:
-    from sssbake.pipeline.core.dipole import DipoleParams, total_diffuse_reflectance
+def _presets(args) -> int:
     from sssbake.pipeline.core.materials import preset, preset_names
+    from sssbake.pipeline.core.profile import profile_for, total_reflectance
 
     print(f"{'preset':<11} {'eta':>4}  {'R_d (RGB)':<20} {'mfp mm (RGB)':<22} diffusion length mm (RGB)")
     for name in preset_names():
-        m = preset(name)
-        p = DipoleParams.from_material(m)
-        rd = total_diffuse_reflectance(p.alpha_prime, p.eta)
+        m = preset(name, args.profile)
+        rd = total_reflectance(profile_for(m))
         fmt = lambda v: " ".join(f"{x:6.3g}" for x in v)  # noqa: E731
         print(f"{name:<11} {m.eta:4.2f}  {fmt(rd):<20} {fmt(m.mean_free_path_mm):<22} {fmt(m.diffusion_length_mm)}")
     return 0
@@ -274,6 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"comma-separated techniques to bake besides the fallback: {', '.join(registry.NAMES)}; "
                         "auto: the planner chooses per mesh and material, with a reason in the report; none: "
                         f"the fallback only (default {','.join(BAKE_DEFAULTS.techniques) or 'none'})")
+    _profile_argument(b)
     _technique_arguments(b)
     b.add_argument("--report", action="store_true",
                    help="also write OUT/report.html: each technique verified against the reference, with pictures")
@@ -307,10 +341,14 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--light-dir", help="x,y,z world direction towards a directional light (default 0.4,0.8,0.45)")
     v.add_argument("--light-pos", help="x,y,z world position of a point light instead (unit irradiance at the "
                                        "objects' centre)")
-    v.add_argument("--reference", default="exact", choices=["exact", "clustered"],
+    v.add_argument("--reference", default="exact", choices=["exact", "clustered", "volpath"],
                    help="offline reference: every vertex pair (default), or far sources through float64 "
-                        "clusters (~1e-3 of q; for 100k+ vertices)")
-    v.add_argument("--size", type=int, default=512, help="image width and height (default 512)")
+                        "clusters (~1e-3 of q; for 100k+ vertices), or volpath: physics (Mitsuba 3's volumetric "
+                        "path tracer; pip install 'sssbake[physics]'; docs/verify_volpath.md)")
+    v.add_argument("--size", type=int, help="image width and height (default 512; 128 with --reference volpath)")
+    v.add_argument("--spp", type=int, default=256,
+                   help="volpath: the truth's samples per pixel and channel, two halves together (default 256)")
+    v.add_argument("--cache-dir", help="volpath: the truth's cache folder (default: .sssbake-cache next to FILE)")
     v.add_argument("--out", help="folder for the PNGs (default: next to the file)")
     v.add_argument("--frames", type=int, default=20, help="frames timed per shader (default 20)")
     v.add_argument("--stock-viewer", action="store_true",
@@ -324,6 +362,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--technique", default="prt", choices=registry.NAMES)
     t.add_argument("--material", default=BAKE_DEFAULTS.material, help="preset name (default marble)")
     t.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
+    _profile_argument(t, BAKE_DEFAULTS.profile)
     for technique in registry.TECHNIQUES:
         technique.add_tradeoff_arguments(t)
     t.add_argument("--lights", type=int, default=3, help="random test lights; the worst RMSE counts (default 3)")
@@ -337,6 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--config", help="TOML batch config (defaults, per-file rules, material rules)")
     pl.add_argument("--material", help="preset name or 'opaque' for unmatched materials")
     pl.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
+    _profile_argument(pl)
     pl.add_argument("--json", action="store_true", help="print a JSON list: asset, mesh, material, techniques, "
                                                         "params, reasons, measures (and pilot)")
     _budget_arguments(pl)
@@ -350,6 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
     w.set_defaults(func=_view)
 
     p = sub.add_parser("presets", help="list the measured material presets (Jensen et al. 2001)")
+    _profile_argument(p, BAKE_DEFAULTS.profile)
     p.set_defaults(func=_presets)
     return parser
 
@@ -369,12 +410,22 @@ def _technique_arguments(parser) -> None:
                                 help=text)
 
 
+def _profile_argument(parser, default: str | None = None) -> None:
+    parser.add_argument("--profile", choices=PROFILE_MODELS, default=default,
+                        help="diffusion profile: montecarlo matches a Monte Carlo random walk (docs/profile.md); "
+                             f"dipole is Jensen et al. 2001's, to reproduce the papers (default {BAKE_DEFAULTS.profile})")
+
+
 def _budget_arguments(parser) -> None:
     parser.add_argument("--budget-rmse", type=float,
                         help="the image RMSE (verify's, on the full asset) each technique should stay under: the bake "
                              "checks it, and with --techniques auto a pilot on a subsample chooses the parameters")
     parser.add_argument("--max-bytes-per-vertex", type=float,
                         help="with --techniques auto: the most bytes per vertex the planner may spend")
+    parser.add_argument("--lambert-margin", type=float,
+                        help="with --techniques auto: a planned technique ships only when its object RMSE on the "
+                             "pilot's subsample is under (1 - this) x best-fit Lambert's, else the fallback alone; "
+                             f"below 1, negative to tolerate worse (default {BAKE_DEFAULTS.lambert_margin:g})")
 
 
 def _allow_root_argument(parser) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 from dataclasses import Field, asdict, dataclass, field, fields, make_dataclass, replace
 
+from sssbake.pipeline.core.materials import DEFAULT_PROFILE, PROFILE_MODELS
 from sssbake.pipeline.mesh.atlas import RESOLUTION
 from sssbake.pipeline.techniques import registry
 
@@ -26,6 +27,10 @@ ASSET_MEMORY_GIB = 16.0
 #: Fields that bound a bake's worker but do not shape its outputs: no part of `BakeOptions.to_json`,
 #: so that a changed limit rebakes nothing.
 SUPERVISION = ("asset_timeout_s", "asset_memory_gib")
+#: ``--techniques auto`` ships a technique only when its object RMSE on the pilot's subsample is under
+#: (1 - this) x best-fit Lambert's: the subsample's figures err (benchmarks/README.md#pilot-subsample),
+#: and a technique that barely beats Lambert there buys nothing for its bytes and frame time.
+LAMBERT_MARGIN = 0.1
 
 
 # The general fields come in two groups, before and after the techniques', in the order
@@ -40,12 +45,14 @@ class _General:
     thickness_rays: int = 1
     validate: bool = True
     techniques: tuple[str, ...] = ("auto",)
+    profile: str = DEFAULT_PROFILE
 
 
 @dataclass(frozen=True)
 class _Limits:
     max_bytes_per_vertex: float | None = None
     budget_rmse: float | None = None
+    lambert_margin: float = LAMBERT_MARGIN
     allow_roots: tuple[str, ...] = ()
     asset_timeout_s: float = ASSET_TIMEOUT_S
     asset_memory_gib: float = ASSET_MEMORY_GIB
@@ -77,6 +84,10 @@ class _BakeOptions:
         Subsurface techniques to bake besides the standard fallback (see `TECHNIQUES`);
         ``("auto",)`` (the default): the planner (`plan.decide`) chooses per mesh and material;
         ``()`` (``"none"`` in a flag or config): the fallback only.
+    profile : str
+        The diffusion profile every material is evaluated with (`materials.PROFILE_MODELS`):
+        ``"montecarlo"`` (the default) matches a Monte Carlo random walk; ``"dipole"`` is the
+        classical dipole of Jensen et al. 2001, to reproduce the papers.
     <technique>_<field>
         Each registered technique's options (``techniques/<technique>/options.py``), e.g.
         ``prt_directions``; `technique_options` gives them as the technique's dataclass.
@@ -87,6 +98,10 @@ class _BakeOptions:
         The image RMSE (`verify.verify_file`'s ``rmse_image``) each baked technique should stay
         under: the bake checks it on the full asset (`plan_check`), and with ``--techniques auto``
         a pilot chooses the parameters (`plan_pilot`) and the check moves them when it fails.
+    lambert_margin : float
+        ``--techniques auto`` ships a planned technique only when the pilot measures its object RMSE
+        under (1 - this) x best-fit Lambert's on the subsample (`LAMBERT_MARGIN`); below 1, negative
+        to tolerate a technique that much worse than Lambert.
     allow_roots : tuple of str
         Folders besides each asset's own that the files it references (glTF buffers and images,
         USD layers and textures, OBJ material libraries) may lie in (`confine.Confinement`).
@@ -180,6 +195,8 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"atlas_padding must be in [0, resolution/8], got {o.atlas_padding}")
     if not (1 <= o.thickness_rays <= 64):
         raise ValueError(f"thickness_rays must be in [1, 64], got {o.thickness_rays}")
+    if o.profile not in PROFILE_MODELS:
+        raise ValueError(f"profile must be one of {', '.join(PROFILE_MODELS)}, got {o.profile!r}")
     unknown = sorted(set(o.techniques) - set(TECHNIQUES) - {"auto"})
     if unknown:
         raise ValueError(f"unknown technique(s) {unknown}; available: {list(TECHNIQUES)}, auto or none")
@@ -191,6 +208,8 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"max_bytes_per_vertex must be a positive number, got {o.max_bytes_per_vertex!r}")
     if o.budget_rmse is not None and not (0 < o.budget_rmse < 1):
         raise ValueError(f"budget_rmse must be an image RMSE in (0, 1), got {o.budget_rmse!r}")
+    if not -float("inf") < o.lambert_margin < 1:
+        raise ValueError(f"lambert_margin must be a finite number below 1, got {o.lambert_margin!r}")
     for name in SUPERVISION:
         if not (0 <= getattr(o, name) < float("inf")):
             raise ValueError(f"{name} must be a finite number >= 0 (0: no limit), got {getattr(o, name)!r}")

@@ -2,7 +2,8 @@
 // integral B(x_o) = ∫ Rd(|x_o - p|) E(p) dA_p from samples p'_i = x_o + offset_i on the tangent
 // plane, projected through the camera onto the surface p_i (the G-buffer pixel under p'_i):
 //
-//     B ≈ Σ_i Rd(r_i) E(p_i) w_i J_i,   r_i = |p_i - x_o|,
+//     B ≈ Σ_i Rd(r_i) E(p_i) w_i J_i,   r_i = |offset_i|, or |p_i - x_o| where p_i lies farther
+//                                      off than the pixel grid explains,
 //
 // w_i the precomputed balance-heuristic weights (pipeline/screen_samples.py), J_i the optional
 // Jacobian |dA_p / dA_p'| = (cos θ' / cos θ) (d² / d'²) of the projection from the eye e (θ, θ':
@@ -53,6 +54,15 @@ void main() {
     float angle = 2.0 * SSS_PI * fract(float(tile.x + u_interleave * tile.y) * 0.6180339887498949);
     vec2 turn = vec2(cos(angle), sin(angle));
     vec2 size = vec2(textureSize(u_position, 0));
+    // the tangent plane's pixel at x_o, mm (its coarser direction): how far a found sample's
+    // distance can stray from its offset by the pixel grid alone
+    vec4 c0 = u_view_projection * vec4(x_o, 1.0);
+    float step_world = 1e-3 * length(u_eye - x_o);
+    vec4 ct = u_view_projection * vec4(x_o + step_world * t, 1.0);
+    vec4 cb = u_view_projection * vec4(x_o + step_world * b, 1.0);
+    vec2 s0 = 0.5 * size * c0.xy / c0.w;
+    float pixels = min(length(0.5 * size * ct.xy / ct.w - s0), length(0.5 * size * cb.xy / cb.w - s0));
+    float footprint = 1.5 * step_world * u_mm_per_world / max(pixels, 1e-6);
     vec3 sum = vec3(0.0);
     vec3 found = vec3(0.0);
     for (int i = 0; i < u_count; ++i) {
@@ -77,7 +87,16 @@ void main() {
             // grazing views of p would weight one pixel without bound
             jacobian = cos_plane / max(cos_p, 0.05) * d2 / d2_plane;
         }
-        vec3 rd = screen_rd(length(p.xyz - x_o) * u_mm_per_world) * (s.z * jacobian);
+        // Where the surface was found where the offset points (within the pixel grid), Rd at the
+        // offset's own radius, which its weight was drawn for; only surface found farther off (a
+        // step in depth, another part) takes its real, larger distance. Read at pixel centres,
+        // a sample inside x_o's own pixel would find r = 0 and Rd(0), a spike for light
+        // scattered a few times near where it entered (the Monte Carlo profile's), and count
+        // x_o's own irradiance many times over.
+        float r_offset = length(s.xy);
+        float r_found = length(p.xyz - x_o) * u_mm_per_world;
+        float r_i = r_found > r_offset + footprint ? r_found : r_offset;
+        vec3 rd = screen_rd(r_i) * (s.z * jacobian);
         sum += rd * p.w;
         found += rd;
     }

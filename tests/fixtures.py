@@ -33,6 +33,75 @@ def plane(spacing: float, half: int) -> tuple[np.ndarray, np.ndarray, int]:
     return verts, faces, half * n + half
 
 
+def auto_smooth(positions: np.ndarray, faces: np.ndarray, degrees: float = 30.0) -> tuple[np.ndarray, np.ndarray,
+                                                                                         np.ndarray]:
+    """Render vertices as an exporter's auto-smooth writes them: every triangle corner its own vertex
+    (positions (3m, 3), faces (m, 3)), its normal (3m, 3) the corner-angle-weighted mean of the normals
+    of the corner vertex's triangles within `degrees` of the corner's own triangle: split across
+    harder edges."""
+    positions, faces = np.asarray(positions, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    corners = positions[faces]
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    unit = cross / np.linalg.norm(cross, axis=1, keepdims=True)
+    to_next, to_prev = np.roll(corners, -1, axis=1) - corners, np.roll(corners, 1, axis=1) - corners
+    angle = np.arccos(np.clip(np.einsum("fcj,fcj->fc", to_next, to_prev) / (
+        np.linalg.norm(to_next, axis=2) * np.linalg.norm(to_prev, axis=2)), -1.0, 1.0))
+    order = np.argsort(faces.reshape(-1), kind="stable")  # corners grouped by vertex
+    start = np.searchsorted(faces.reshape(-1)[order], np.arange(len(positions) + 1))
+    normals = []
+    for f, corner in enumerate(faces):
+        for v in corner:
+            around, at = np.divmod(order[start[v]:start[v + 1]], 3)
+            near = unit[around] @ unit[f] > np.cos(np.radians(degrees))
+            normals.append((angle[around, at][near, None] * unit[around][near]).sum(axis=0))
+    normals = np.array(normals)
+    return (corners.reshape(-1, 3), np.arange(3 * len(faces), dtype=np.int64).reshape(-1, 3),
+            normals / np.linalg.norm(normals, axis=1, keepdims=True))
+
+
+def cylinder(radius: float, height: float, segments: int = 32, rings: int = 5,
+             caps: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """A cylinder about z, from -height/2 to height/2, outward wound: `rings` rings of `segments`
+    vertices on its side (positions, faces); with `caps`, each cap a fan about a centre vertex
+    (the last two vertices: bottom, top)."""
+    angle = 2.0 * np.pi * np.arange(segments) / segments
+    z = np.repeat(np.linspace(-0.5 * height, 0.5 * height, rings), segments)
+    positions = np.column_stack([radius * np.tile(np.cos(angle), rings), radius * np.tile(np.sin(angle), rings), z])
+    ring = np.arange(rings - 1)[:, None] * segments
+    a = (ring + np.arange(segments)).ravel()
+    b = (ring + (np.arange(segments) + 1) % segments).ravel()
+    faces = [np.column_stack([a, b, b + segments]), np.column_stack([a, b + segments, a + segments])]
+    if caps:
+        j, k = np.arange(segments), (np.arange(segments) + 1) % segments
+        bottom, top, last = len(positions), len(positions) + 1, (rings - 1) * segments
+        positions = np.vstack([positions, [[0.0, 0.0, -0.5 * height], [0.0, 0.0, 0.5 * height]]])
+        faces += [np.column_stack([np.full(segments, bottom), k, j]),
+                  np.column_stack([np.full(segments, top), last + j, last + k])]
+    return positions, np.concatenate(faces).astype(np.int64)
+
+
+def hemisphere(radius: float, segments: int = 48, rings: int = 12, base: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The dome z >= 0 of a sphere about the origin, outward wound (positions, faces): a pole vertex
+    first, then `rings` rings of `segments` vertices down to the rim in z = 0; with `base`, closed by
+    a fan about a last vertex at the origin."""
+    polar = np.repeat(0.5 * np.pi * np.arange(1, rings + 1) / rings, segments)
+    angle = np.tile(2.0 * np.pi * np.arange(segments) / segments, rings)
+    ring_points = radius * np.column_stack([np.sin(polar) * np.cos(angle), np.sin(polar) * np.sin(angle),
+                                            np.cos(polar)])
+    ring_points[-segments:, 2] = 0.0  # cos(π/2) is 6e-17, not 0: the rim lies in z = 0 exactly
+    positions = np.vstack([[[0.0, 0.0, radius]], ring_points])
+    j, k = np.arange(segments), (np.arange(segments) + 1) % segments
+    faces = [np.column_stack([np.zeros(segments, dtype=np.int64), 1 + j, 1 + k])]
+    for i in range(rings - 1):
+        a, b = 1 + i * segments + j, 1 + i * segments + k
+        faces += [np.column_stack([a, a + segments, b + segments]), np.column_stack([a, b + segments, b])]
+    if base:
+        rim = 1 + (rings - 1) * segments
+        faces.append(np.column_stack([np.full(segments, len(positions)), rim + k, rim + j]))
+        positions = np.vstack([positions, [[0.0, 0.0, 0.0]]])
+    return positions, np.concatenate(faces).astype(np.int64)
+
+
 def random_kernels(rng, n: int = 40, width: int = 24, height: int = 20, kernel_size: int = 7, texels: int = 150,
                    per_row: int = 6, borders: int = 5, surface: int | None = None):
     """Valid `KernelsData` with random values (n global vertices, `surface` welded surface

@@ -3,18 +3,15 @@ materials over the whole valid range (α' from 0 to 1, σ_tr towards 0, η from 
 1e-3 to 1e4 mm per unit: outputs finite, non-negative and within the R_d energy bound."""
 
 import re
+from dataclasses import replace
 
 import numpy as np
+import pytest
 import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sssbake.pipeline.core.dipole import (
-    DipoleParams,
-    diffuse_reflectance_profile,
-    disc_integral,
-    total_diffuse_reflectance,
-)
+from sssbake.pipeline.core.profile import diffuse_reflectance_profile, disc_integral, profile_for, profile_total, total_reflectance
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.naive_normals import naive_normals
 from sssbake.pipeline.core.scatter_operator import SCATTER_DEFAULTS, scatter_operator
@@ -42,12 +39,14 @@ def small_ball():
     return weld_surface([Primitive(positions=np.asarray(mesh.vertices, float), faces=np.asarray(mesh.faces))], 1e-9)
 
 
+@pytest.mark.parametrize("model", ["montecarlo", "dipole"])
 @FAST
-@given(materials)
-def test_the_dipole_stays_finite_and_within_its_energy(material):
-    p = DipoleParams.from_material(material)
-    total = total_diffuse_reflectance(p.alpha_prime, p.eta)
-    assert np.all(np.isfinite(total)) and np.all(total >= 0) and np.all(total <= 1.0)
+@given(material=materials)
+def test_the_profile_stays_finite_and_within_its_energy(material, model):
+    p = profile_for(replace(material, profile=model))
+    light = total_reflectance(p)  # what leaves: at most what came in
+    assert np.all(np.isfinite(light)) and np.all(light >= 0) and np.all(light <= 1.0 + 1e-12)
+    total = profile_total(p)
     r = np.concatenate([[0.0], np.geomspace(1e-6, 1e6, 40)])
     profile = diffuse_reflectance_profile(r, p)
     assert np.all(np.isfinite(profile)) and np.all(profile >= 0)
@@ -71,8 +70,8 @@ def test_screen_tables_are_finite_and_hold_the_reflectance(material):
         assert reach / narrowest > 1e4, message
         return
     samples.check()
-    p = DipoleParams.from_material(material)
-    total = total_diffuse_reflectance(p.alpha_prime, p.eta)
+    p = profile_for(material)
+    total = profile_total(p)
     integrated = table_total(samples)
     assert np.all(np.isfinite(integrated)) and np.all(integrated <= total * 1.06 + 1e-12)
     # where there is reflectance to speak of, the table holds it
@@ -84,10 +83,10 @@ def test_screen_tables_are_finite_and_hold_the_reflectance(material):
 @given(materials, scales)
 def test_prt_scattering_is_finite_and_within_the_energy_bound(material, mm):
     surface = small_ball()
-    p = DipoleParams.from_material(material)
+    p = profile_for(material)
     operator = scatter_operator(surface.positions * mm, surface.faces, surface.normals, p, SCATTER_DEFAULTS)
     out = operator.apply(np.ones((len(surface.positions), 1)))[:, :, 0]  # unit entering irradiance
-    total = total_diffuse_reflectance(p.alpha_prime, p.eta)
+    total = profile_total(p)
     assert np.all(np.isfinite(out)) and np.all(out >= 0)
     # no vertex gathers more than R_d from uniform light (sources are capped at R_d, and the ball
     # has no more surface around a vertex than a plane would give it... to the quadrature's error)
@@ -102,7 +101,7 @@ def test_lpv_grids_transport_and_scales_are_finite(material, mm):
     grid.check()
     scatter, attenuation = transport_factors(grid)
     assert np.all((scatter >= 0) & (scatter <= 1)) and np.all((attenuation >= 0) & (attenuation <= 1))
-    scales_ = render_scales(grid, 4)
+    scales_ = render_scales(grid, 4, "montecarlo")
     assert np.all(np.isfinite(scales_)) and np.all(scales_ > 0)
 
 

@@ -9,7 +9,7 @@ import pytest
 import trimesh
 from test_extremes import small_ball
 
-from sssbake.pipeline.core.dipole import total_diffuse_reflectance
+from sssbake.pipeline.core.profile import profile_of, profile_total
 from sssbake.pipeline.core.fresnel import fresnel_transmittance
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.techniques.lpv.calibrate import render_scales
@@ -47,11 +47,11 @@ def test_lpv_scale_meets_its_limit_where_a_step_keeps_no_light(sigma_a, mm):
     assert np.all(a < 1e-20)  # a step keeps nothing: the asymptotic regime
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        scales = render_scales(grid, 6)
+        scales = render_scales(grid, 6, "montecarlo")
         tables = lpv_tables(grid, propagation_matrices(), scales, "homogeneous")
     # the slab's radiance is a R1 + O(a²), so every step count's scale tends to want / (a R1)
     albedo = grid.albedo[grid.occupancy > 0].astype(np.float64).mean(axis=0)
-    want = total_diffuse_reflectance(albedo, grid.eta) * fresnel_transmittance(grid.eta, 1.0) / np.pi
+    want = profile_total(profile_of(tuple(albedo), tuple(1.0 - albedo), grid.eta, "montecarlo")) * fresnel_transmittance(grid.eta, 1.0) / np.pi
     limit = want / (a * first_step_radiance(grid))
     np.testing.assert_allclose(scales, np.broadcast_to(limit, scales.shape), rtol=1e-9)
     assert np.all(np.isfinite(tables["renderScale"])) and np.all(tables["renderScale"] > 0)

@@ -51,17 +51,17 @@ from sssbake.pipeline.mesh.confine import Confinement
 from sssbake.pipeline.mesh.digest import file_digest
 from sssbake.pipeline.mesh.scale import instance_scale, resolve_scale_mm
 from sssbake.pipeline.mesh.scene import Image, Mesh, Scene, Texture, TextureRef
-from sssbake.pipeline.mesh.thickness import ThicknessResult
+from sssbake.pipeline.mesh.thickness import ThicknessResult, miss_warnings
 from sssbake.pipeline.mesh.thickness_map import ThicknessMap
 from sssbake.pipeline.options import BakeOptions
 from sssbake.pipeline.planning.assign import Assignment, assign_materials
-from sssbake.pipeline.planning.plan import PlanEntry, decide, with_pilot
+from sssbake.pipeline.planning.plan import PlanEntry, decide, requested_checks, with_pilot
 from sssbake.pipeline.techniques.registry import TECHNIQUES
 from sssbake.pipeline.techniques.technique import MATERIAL, MESH, Budget, TechniqueBake
 
 # Bump a stage's version when its output for the same input changes (a technique's: its `stage_version`).
-STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 1, "thickness_map": 2,
-                  **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 3}
+STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 2, "thickness_map": 3,
+                  **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 4}
 
 LINEAR, CLAMP_TO_EDGE = 9729, 33071
 
@@ -197,6 +197,7 @@ class _Baking:
     plan: list[PlanEntry] = field(default_factory=list)  # the planner's entries (--techniques auto)
     material_options: dict[int, BakeOptions] = field(default_factory=dict)  # per material, its plan entry's
     used: set[str] = field(default_factory=set)  # techniques some mesh or material ran
+    lambert_checks: list[dict] = field(default_factory=list)  # the pilot against best-fit Lambert (`lambert_record`)
     started: float = field(default_factory=time.monotonic)  # against asset_timeout_s (`_budget`)
 
     def __post_init__(self) -> None:
@@ -272,7 +273,9 @@ def bake_asset(
     extras = {
         "scaleMmPerUnit": mm_per_unit,
         "scaleSource": scale_source,
-        "thickness": {"unit": "mm", "raysPerSample": options.thickness_rays, "missCap": "bounding-box diagonal"},
+        "thickness": {"unit": "mm", "raysPerSample": options.thickness_rays,
+                      "missCap": "bounding-box diagonal; a ray that meets no surface ends where the winding "
+                                 "number falls to 1/2"},
     }
     asset = BakedAsset(baked_scene, b.attributes, b.scattering, b.scale_mm, extras, b.mesh_extras, b.material_extras)
     head = {
@@ -291,6 +294,7 @@ def bake_asset(
         "atlas": b.atlases,
         **b.blocks,
         "plan": [e.to_json() for e in b.plan],
+        "lambert_checks": b.lambert_checks,
     }
     return BakeResult(_write(b, asset, outputs, extra, head, path, t_start), outputs)
 
@@ -362,11 +366,15 @@ def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path,
         return
     with ThreadPoolExecutor(1) as pool:
         atlas = pool.submit(_atlas, b, mi, mesh_key)
-        thick = _thickness(b, mi, surface, mesh_mm, mesh_key)
+        thick = _thickness(b, mi, surface, mesh_key)
         if b.auto:
             chosen, mesh_options = _plan_mesh(b, mi, mats, surface, thick, mesh_mm, mesh_key, path, picks)
         else:
             chosen, mesh_options = set(b.options.techniques), b.options
+            for m in mats:  # baked as asked, but measured against best-fit Lambert all the same
+                b.lambert_checks += requested_checks(mesh.name, b.scene.materials[m].name, b.options.techniques,
+                                                     surface, mesh_mm, b.material_of[m], b.options, _world(b, mi),
+                                                     _cached_pilot(b, mesh_key))
         b.used |= chosen
         results = _bake_mesh_techniques(b, mi, mats, surface, None, mesh_mm, mesh_key, chosen, mesh_options)
         atlas, k_atlas = atlas.result()
@@ -400,16 +408,13 @@ def _atlas(b: _Baking, mi: int, mesh_key: str) -> tuple[Atlas, str]:
     return atlas, k_atlas
 
 
-def _thickness(b: _Baking, mi: int, surface: Surface, mesh_mm: float, mesh_key: str) -> ThicknessResult:
-    """Per-vertex thickness of mesh `mi`'s welded `surface` (a warning when rays left it)."""
+def _thickness(b: _Baking, mi: int, surface: Surface, mesh_key: str) -> ThicknessResult:
+    """Per-vertex thickness of mesh `mi`'s welded `surface` (warnings naming the rays that met no
+    surface, started outside or found no inside, and the surface's defects)."""
     cap = _miss_cap(surface)
     thick, _ = b.runner.run("thickness", STAGE_VERSIONS["thickness"], mesh_key, ThicknessParams(b.options.thickness_rays),
-                            thickness_stage, surface, cap)
-    if not thick.hit.all():
-        b.warnings.append(
-            f"mesh {b.scene.meshes[mi].name!r}: {int((~thick.hit).sum())} of {len(thick.hit)} thickness rays left the "
-            f"mesh (open surface); they were capped at the bounding-box diagonal ({cap * mesh_mm:.4g} mm)"
-        )
+                            thickness_stage, surface, [p.normals for p in b.scene.meshes[mi].primitives], cap)
+    b.warnings.extend(f"mesh {b.scene.meshes[mi].name!r} {line}" for line in miss_warnings(thick, surface.faces))
     return thick
 
 
@@ -418,23 +423,38 @@ def _plan_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, thickness
     """The planner's entries for mesh `mi`'s materials (``--techniques auto``; the pilot a cached
     stage): the techniques they choose and the options they set."""
     mesh = b.scene.meshes[mi]
-    world = np.asarray((b.scene.mesh_instances().get(mi) or [np.eye(4)])[0])  # the pilot sees the mesh as verify does
-
-    def cached_pilot(found, surface, mm, material, options, budget, vertices, world):  # `run_pilot`'s arguments
-        params = PilotParams(material, mm, options.to_json(), tuple(found), np.asarray(world))
-        return b.runner.run("pilot", STAGE_VERSIONS["pilot"], mesh_key, params, pilot_stage, surface, options, budget,
-                            vertices)[0]
-
     entries = []
     for m in mats:
         e = decide(str(path), mesh.name, b.scene.materials[m].name, b.material_of[m], mesh.deforming, b.options,
                    surface, thickness.thickness, mesh_mm)
-        entries.append(with_pilot(e, surface, mesh_mm, b.material_of[m], mesh.deforming, b.options, world,
-                                  (picks or {}).get(e.key), cached_pilot))
+        entries.append(with_pilot(e, surface, mesh_mm, b.material_of[m], mesh.deforming, b.options, _world(b, mi),
+                                  (picks or {}).get(e.key), _cached_pilot(b, mesh_key)))
     b.plan += entries
+    b.lambert_checks += [e.lambert_check for e in entries if e.lambert_check]
     # material-scope techniques are baked after the meshes: each material keeps its entry's options
     b.material_options.update({m: b.options.merged(e.params) for m, e in zip(mats, entries)})
     return {t for e in entries for t in e.techniques}, b.options.merged({k: v for e in entries for k, v in e.params.items()})
+
+
+def _world(b: _Baking, mi: int) -> np.ndarray:
+    """(4, 4) world matrix of mesh `mi`'s first instance: the pilot sees the mesh as verify does."""
+    return np.asarray((b.scene.mesh_instances().get(mi) or [np.eye(4)])[0])
+
+
+def _cached_pilot(b: _Baking, mesh_key: str):
+    """`pilot.run_pilot` for a mesh keyed `mesh_key`, as a cached stage (it takes the same arguments),
+    keyed on what it reads: its candidates, their techniques' options as their bakes key them, the
+    budget and the margin over best-fit Lambert; an option none of them reads reruns nothing."""
+
+    def cached_pilot(found, surface, mm, material, options, budget, vertices, world):
+        read = {"budget_rmse": budget, "lambert_margin": options.lambert_margin,
+                **{t.name: t.stage_options(options.technique_options(t.name)) for t in TECHNIQUES
+                   if any(c.technique == t.name for c in found)}}
+        params = PilotParams(material, mm, read, tuple(found), np.asarray(world))
+        return b.runner.run("pilot", STAGE_VERSIONS["pilot"], mesh_key, params, pilot_stage, surface, options, budget,
+                            vertices)[0]
+
+    return cached_pilot
 
 
 def _bake_mesh_techniques(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: _MeshStages | None,

@@ -153,8 +153,11 @@ def run_job(job: Job, config: BatchConfig, overrides: dict, cache_dir: str | Non
 
 def _record_result(record: dict, job: Job, result) -> None:
     """`record` (`run_job`'s) completed from a `BakeResult`."""
+    from sssbake.pipeline.planning.plan import worse_than_lambert
+
     record["outputs"] = [str(p) for p in result.outputs]
     record["warnings"] = len(result.report.get("warnings", []))
+    record["worse_than_lambert"] = worse_than_lambert(result.report)
     invalid = [
         f"{fmt}: {v['errors']} validation error(s)"
         for fmt, v in result.report.get("validation", {}).items()
@@ -218,8 +221,10 @@ def run_batch(
     Returns
     -------
     dict
-        ``assets`` (one record per asset, in `find_assets` order), ``ok``, ``failed``, ``seconds``
-        and ``temporaries_removed`` (stale temporary files of an interrupted batch swept first).
+        ``assets`` (one record per asset, in `find_assets` order), ``ok``, ``failed``,
+        ``worse_than_lambert`` (`plan.worse_than_lambert`'s records, each with its ``asset``),
+        ``seconds`` and ``temporaries_removed`` (stale temporary files of an interrupted batch
+        swept first).
 
     Raises
     ------
@@ -265,6 +270,9 @@ def run_batch(
             "assets": records,
             "ok": sum(r["status"] in ("ok", "up-to-date") for r in records),
             "failed": sum(r["status"] == "failed" for r in records),
+            # shipped techniques the pilot measured worse than best-fit Lambert, each with its asset
+            "worse_than_lambert": [{"asset": r["asset"], **m} for r in records
+                                   for m in r.get("worse_than_lambert", [])],
             "seconds": round(time.perf_counter() - t0, 3),
             "temporaries_removed": removed,
         }

@@ -7,10 +7,11 @@ The pilot's RMSE on its subsample is not the full asset's (the subsample is coar
 benchmarks/README.md#pilot-subsample), so the check scales the pilot's
 figures of the baked technique by what the full asset measured, and moves to the first candidate
 whose scaled figure meets the budget (one not measured is tried), passing over those whose bytes
-did not hold in the pilot. Within the budget, a cheaper candidate of another technique (whose
-scale is not known) is tried once: screen's pilot errs high, and would otherwise hand a thick
-object to prt for good. At most `MAX_BAKES` bakes. The cheapest that met the budget (bytes per
-vertex, then frame time) is kept, or the one with the least RMSE when none did; an attempt over
+did not hold, or that did not beat best-fit Lambert, in the pilot (an entry none beat bakes the
+fallback alone and is not moved). Within the budget, a cheaper candidate of another technique
+(whose scale is not known) is tried once: screen's pilot errs high, and would otherwise hand a
+thick object to prt for good. At most `MAX_BAKES` bakes. The cheapest that met the budget (bytes
+per vertex, then frame time) is kept, or the one with the least RMSE when none did; an attempt over
 ``max_bytes_per_vertex`` is kept only when all are.
 
 The report gets ``check``: the budget, each attempt's picks and figures, the kept attempt's
@@ -131,7 +132,7 @@ def next_picks(plan: list[dict], figures: dict, budget: float, tried: list[dict]
     picks, moved = dict(tried[-1]), False
     for e in plan:
         pilot = e.get("pilot")
-        if not pilot:
+        if not pilot or not e["techniques"]:  # no candidate beat best-fit Lambert: the fallback alone
             continue
         technique, at = e["techniques"][0], pilot["pick"]
         measured = figures.get(technique, {}).get("rmse_image")
@@ -146,8 +147,9 @@ def next_picks(plan: list[dict], figures: dict, budget: float, tried: list[dict]
                 return None
             return row["rmse_image"] * (scale if pilot["candidates"][i]["technique"] == technique else 1.0)
 
-        def holds(i):  # the pilot saw its bytes hold (prt's simplification may stop short)
-            return i >= len(pilot["rows"]) or pilot["rows"][i].get("holds_bytes", True)
+        def holds(i):  # the pilot saw its bytes hold (prt's simplification may stop short) and it beat Lambert
+            row = pilot["rows"][i] if i < len(pilot["rows"]) else {}
+            return row.get("holds_bytes", True) and row.get("beats_lambert", True)
 
         if measured > budget:
             dearer = [i for i in range(at + 1, len(pilot["candidates"])) if holds(i)]
@@ -180,3 +182,4 @@ def _cost(figures: dict, budget: float, max_bytes: float | None = None) -> tuple
     if worst <= budget:
         return (0, spent, sum(f.get("frame_ms_sss", 0.0) for f in figures.values()))
     return (1, worst, 0.0)
+

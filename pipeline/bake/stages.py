@@ -152,9 +152,12 @@ class ThicknessParams:
     rays: int
 
 
-def thickness_stage(surface: Surface, cap: float, params: ThicknessParams) -> ThicknessResult:
-    """Per-vertex thickness of the welded `surface`, rays that leave capped at `cap` (file units)."""
-    return bake_thickness(surface.positions, surface.faces, surface.normals, cap=cap, rays=params.rays)
+def thickness_stage(surface: Surface, normals: list, cap: float, params: ThicknessParams) -> ThicknessResult:
+    """Per-vertex thickness of the welded `surface`, capped at `cap` (file units); `normals`: per
+    primitive its render vertices' normals (n_p, 3), split where the author marked hard edges."""
+    return bake_thickness(surface.positions, surface.faces, surface.normals,
+                          split_normals=(np.concatenate(surface.weld), np.concatenate(normals)), cap=cap,
+                          rays=params.rays)
 
 
 @dataclass(frozen=True)
@@ -193,7 +196,7 @@ class PilotParams:
     material : Material
     mm_per_unit : float
     options : dict
-        `BakeOptions.to_json` of the options it runs under (those that shape outputs).
+        What it reads of the options it runs under (`asset._cached_pilot`).
     candidates : tuple of Candidate
     world : (4, 4) float64
         The mesh's first instance's world matrix.

@@ -1,10 +1,10 @@
-"""The dipole profile integrated exactly over each vertex's own surface cell: the self term of
+"""The diffusion profile integrated exactly over each vertex's own surface cell: the self term of
 the gather.
 
 A vertex owns a third of each incident triangle: the quadrilateral (vertex, edge midpoint,
 centroid, edge midpoint), two triangles with the vertex as apex. Over a triangle with apex v
 and far edge PQ, in polar coordinates about v, ∫ Rd(|p - v|) dp = (1/2π) ∫ G(ρ(φ)) dφ with
-G(r) = 2π ∫_0^r Rd(s) s ds in closed form (`dipole.disc_integral`) and ρ(φ) = ℓ / cos(φ - φ_⊥)
+G(r) = 2π ∫_0^r Rd(s) s ds in closed form (`profile.disc_integral`) and ρ(φ) = ℓ / cos(φ - φ_⊥)
 the distance to the edge's line. Gauss-Legendre over φ makes it exact to ~1e-6 for any
 triangle shape. A disc of the same area is only right for round cells: on irregular meshes
 (long fans of thin triangles) it reaches across neighbours' cells, which then count twice.
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import DipoleParams, disc_integral
+from sssbake.pipeline.core.profile import Profile, disc_integral
 
 #: Gauss-Legendre nodes per sub-triangle of a vertex's own cell (~1e-6), and per triangle seen
 #: from a point beside it (~3e-5 typical, 0.6 % at worst with the point near an edge's line).
@@ -30,7 +30,7 @@ STEPS_PER_E = 200
 class Cumulative:
     """G(r) = 2π ∫_0^r Rd(s) s ds, tabulated: ln G linear in ln r on `STEPS_PER_E` nodes per
     e-fold (relative error ~1e-5; tests measure it), G ∝ r² below the first node, G(∞) above
-    the last; ~10× cheaper than `dipole.disc_integral` for the many nodes of the triangle rules.
+    the last; ~10× cheaper than `profile.disc_integral` for the many nodes of the triangle rules.
 
     Attributes
     ----------
@@ -46,11 +46,11 @@ class Cumulative:
     slope: np.ndarray
 
     @staticmethod
-    def build(params: DipoleParams) -> "Cumulative":
+    def build(params: Profile) -> "Cumulative":
         # From far inside the quadratic start to where G has reached R_d to ~1e-6 (the tail
         # beyond r falls as z/r at least as fast as for σ_tr = 0).
-        lo = np.log(1e-4 * float(params.z_r.min()))
-        hi = np.log(1e6 * float(params.z_v.max()))
+        lo = np.log(1e-4 * float(params.z_min.min()))
+        hi = np.log(1e6 * float(params.z_max.max()))
         r = np.exp(np.arange(lo, hi + 1.0 / STEPS_PER_E, 1.0 / STEPS_PER_E))
         log_g = np.ascontiguousarray(np.log(np.maximum(disc_integral(r, params), 1e-300)).T)
         return Cumulative(float(lo), log_g, np.diff(log_g, axis=1, append=log_g[:, -1:]))
@@ -78,14 +78,14 @@ class Cumulative:
         return np.exp(out, out=out)
 
 
-def cell_integral(positions_mm: np.ndarray, faces: np.ndarray, params: DipoleParams) -> np.ndarray:
+def cell_integral(positions_mm: np.ndarray, faces: np.ndarray, params: Profile) -> np.ndarray:
     """∫ Rd(|p - x_v|) dp over each vertex's barycentric cell.
 
     Parameters
     ----------
     positions_mm : (n, 3) float64
     faces : (m, 3) int
-    params : DipoleParams
+    params : Profile
 
     Returns
     -------

@@ -20,6 +20,12 @@ class MaterialError(SssbakeError, ValueError):
     """A material's parameters are impossible or unknown."""
 
 
+#: Diffusion profile models (`profile.py`): the Monte Carlo-matched default and the classical dipole
+#: of Jensen et al. 2001, kept to reproduce the papers.
+PROFILE_MODELS = ("montecarlo", "dipole")
+DEFAULT_PROFILE = "montecarlo"
+
+
 @dataclass(frozen=True)
 class Material:
     """A homogeneous scattering material.
@@ -33,12 +39,15 @@ class Material:
         Absorption coefficient per RGB channel, 1/mm.
     eta : float
         Relative index of refraction (>= 1).
+    profile : str
+        The diffusion profile model every technique evaluates (`PROFILE_MODELS`).
     """
 
     name: str
     sigma_s_prime: tuple[float, float, float]
     sigma_a: tuple[float, float, float]
     eta: float
+    profile: str = DEFAULT_PROFILE
 
     def __post_init__(self) -> None:
         s = _rgb(self.sigma_s_prime, "sigma_s_prime", self.name)
@@ -48,6 +57,15 @@ class Material:
         if not (isinstance(self.eta, (int, float)) and math.isfinite(self.eta)) or self.eta < 1.0:
             raise MaterialError(f"material {self.name!r}: eta must be a finite number >= 1, got {self.eta!r}")
         object.__setattr__(self, "eta", float(self.eta))
+        if self.profile not in PROFILE_MODELS:
+            raise MaterialError(f"material {self.name!r}: profile must be one of {', '.join(PROFILE_MODELS)}, "
+                                f"got {self.profile!r}")
+        if self.profile == "montecarlo":
+            from sssbake.pipeline.core.montecarlo_profile import ETAS
+
+            if self.eta > ETAS[-1]:
+                raise MaterialError(f"material {self.name!r}: eta {self.eta:g} is beyond the Monte Carlo profile's "
+                                    f"table (1-{ETAS[-1]:g}); use --profile dipole")
         if any(x + y <= 0.0 for x, y in zip(s, a)):
             raise MaterialError(
                 f"material {self.name!r}: sigma_s_prime + sigma_a must be > 0 in every channel"
@@ -89,12 +107,20 @@ class Material:
         with np.errstate(divide="ignore"):
             return np.where(self.sigma_tr > 0.0, 1.0 / np.maximum(self.sigma_tr, 1e-300), np.inf)
 
+    @staticmethod
+    def from_json(data: dict) -> "Material":
+        """The inverse of `to_json`. A record without ``profile`` was written before the Monte Carlo
+        profile existed, by the classical dipole."""
+        return Material(str(data["name"]), tuple(float(v) for v in data["sigma_s_prime"]),
+                        tuple(float(v) for v in data["sigma_a"]), float(data["eta"]), str(data.get("profile", "dipole")))
+
     def to_json(self) -> dict:
         return {
             "name": self.name,
             "sigma_s_prime": list(self.sigma_s_prime),
             "sigma_a": list(self.sigma_a),
             "eta": self.eta,
+            "profile": self.profile,
         }
 
 
@@ -125,19 +151,20 @@ def preset_names() -> list[str]:
     return sorted(k.lower() for k in _table())
 
 
-def preset(name: str) -> Material:
-    """The measured material `name` (case-insensitive), e.g. ``preset("marble")``."""
+def preset(name: str, profile: str = DEFAULT_PROFILE) -> Material:
+    """The measured material `name` (case-insensitive), e.g. ``preset("marble")``, under the
+    diffusion profile model `profile`."""
     for key, row in _table().items():
         if key.lower() == name.lower():
-            return Material(key.lower(), row["sigma_s_prime"], row["sigma_a"], row["eta"])
+            return Material(key.lower(), row["sigma_s_prime"], row["sigma_a"], row["eta"], profile)
     raise MaterialError(f"unknown material preset {name!r}; choose one of {', '.join(preset_names())}")
 
 
-def from_albedo_mfp(name: str, albedo, mfp_mm, eta: float = 1.3) -> Material:
+def from_albedo_mfp(name: str, albedo, mfp_mm, eta: float = 1.3, profile: str = DEFAULT_PROFILE) -> Material:
     """A material from a diffuse albedo (total diffuse reflectance R_d) and a mean free path.
 
-    Inverts the closed-form R_d(α') per channel (it is monotone in α'), then sets
-    σ'_t = 1 / mfp.
+    Inverts the profile model's total reflectance R_d(α', η) per channel (it is monotone in α'),
+    then sets σ'_t = 1 / mfp.
 
     Parameters
     ----------
@@ -148,48 +175,54 @@ def from_albedo_mfp(name: str, albedo, mfp_mm, eta: float = 1.3) -> Material:
     """
     from scipy.optimize import brentq
 
-    from sssbake.pipeline.core.dipole import total_diffuse_reflectance
+    from sssbake.pipeline.core.profile import total_for_albedo
 
     rd = np.asarray(_rgb(albedo, "albedo", name))
     mfp = np.asarray(_rgb(mfp_mm, "mean_free_path_mm", name))
     if np.any(mfp <= 0.0):
         raise MaterialError(f"material {name!r}: mean_free_path_mm must be > 0, got {mfp.tolist()}")
-    rd_max = float(total_diffuse_reflectance(np.array([1.0]), eta)[0])
+    if profile not in PROFILE_MODELS:
+        raise MaterialError(f"material {name!r}: profile must be one of {', '.join(PROFILE_MODELS)}, got {profile!r}")
+    rd_max = float(total_for_albedo(1.0, eta, profile)[0])
     alphas = []
     for r in rd:
         if not 0.0 < r < rd_max:
             raise MaterialError(
                 f"material {name!r}: albedo {r} is outside (0, {rd_max:.4f}), the reachable range at eta={eta}"
             )
-        alphas.append(brentq(lambda a, r=r: total_diffuse_reflectance(np.array([a]), eta)[0] - r, 0.0, 1.0, xtol=1e-14))
+        alphas.append(brentq(lambda a, r=r: total_for_albedo(a, eta, profile)[0] - r, 0.0, 1.0, xtol=1e-14))
     alpha = np.array(alphas)
     st = 1.0 / mfp
-    return Material(name, alpha * st, (1.0 - alpha) * st, eta)
+    return Material(name, alpha * st, (1.0 - alpha) * st, eta, profile)
 
 
-def material_from_spec(spec: dict | str, name: str = "custom") -> Material:
+def material_from_spec(spec: dict | str, name: str = "custom", profile: str = DEFAULT_PROFILE) -> Material:
     """A material from a config value: a preset name, or a table with
-    ``preset`` / (``sigma_s_prime``, ``sigma_a``, ``eta``) / (``albedo``, ``mean_free_path_mm``, ``eta``)."""
+    ``preset`` / (``sigma_s_prime``, ``sigma_a``, ``eta``) / (``albedo``, ``mean_free_path_mm``, ``eta``),
+    under the diffusion profile model `profile` (an albedo is inverted through it), which a table's
+    own ``profile`` overrides."""
     if isinstance(spec, str):
-        return preset(spec)
+        return preset(spec, profile)
     if not isinstance(spec, dict):
         raise MaterialError(f"material {name!r}: expected a preset name or a table, got {spec!r}")
-    keys = set(spec) - {"scale_mm", "name"}
+    keys = set(spec) - {"scale_mm", "name", "profile"}
+    profile = spec.get("profile", profile)
     if "preset" in keys:
         extra = keys - {"preset"}
         if extra:
             raise MaterialError(f"material {name!r}: 'preset' cannot be combined with {sorted(extra)}")
-        return preset(spec["preset"])
+        return preset(spec["preset"], profile)
     if {"sigma_s_prime", "sigma_a"} <= keys:
         extra = keys - {"sigma_s_prime", "sigma_a", "eta"}
         if extra:
             raise MaterialError(f"material {name!r}: unknown keys {sorted(extra)}")
-        return Material(spec.get("name", name), spec["sigma_s_prime"], spec["sigma_a"], spec.get("eta", 1.3))
+        return Material(spec.get("name", name), spec["sigma_s_prime"], spec["sigma_a"], spec.get("eta", 1.3), profile)
     if {"albedo", "mean_free_path_mm"} <= keys:
         extra = keys - {"albedo", "mean_free_path_mm", "eta"}
         if extra:
             raise MaterialError(f"material {name!r}: unknown keys {sorted(extra)}")
-        return from_albedo_mfp(spec.get("name", name), spec["albedo"], spec["mean_free_path_mm"], spec.get("eta", 1.3))
+        return from_albedo_mfp(spec.get("name", name), spec["albedo"], spec["mean_free_path_mm"], spec.get("eta", 1.3),
+                               profile)
     raise MaterialError(
         f"material {name!r}: give 'preset', or 'sigma_s_prime' + 'sigma_a' [+ 'eta'], "
         f"or 'albedo' + 'mean_free_path_mm' [+ 'eta']; got keys {sorted(keys)}"

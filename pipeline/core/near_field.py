@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sssbake.pipeline.core.cell_integral import Cumulative, cell_integral, triangle_integral_in_plane
-from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile
+from sssbake.pipeline.core.profile import Profile, diffuse_reflectance_profile
 from sssbake.pipeline.core.disc_average import DiscMean
 from sssbake.pipeline.core.surface import triangle_areas
 
@@ -70,14 +70,14 @@ class NearField:
     disc: DiscMean
 
     @staticmethod
-    def build(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: DipoleParams) -> "NearField":
+    def build(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: Profile) -> "NearField":
         """Parameters
         ----------
         positions_mm : (n, 3) float64
         faces : (m, 3) int
         normals : (n, 3) float64
             Unit vertex normals (the plane of a source's disc).
-        params : DipoleParams
+        params : Profile
         """
         x = np.asarray(positions_mm, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile
+from sssbake.pipeline.core.profile import Profile, diffuse_reflectance_profile
 
 #: Largest relative error of the interpolated values (at the midpoints of the grid, where linear
 #: interpolation errs most).
@@ -25,7 +25,7 @@ NODES = 1 << 18
 class ProfileTable:
     """Attributes
     ----------
-    params : DipoleParams
+    params : Profile
     step : float
         Grid step in d², mm².
     values : (3, nodes) float64
@@ -36,14 +36,14 @@ class ProfileTable:
         d² (mm²) below which the closed form is used.
     """
 
-    params: DipoleParams
+    params: Profile
     step: float
     values: np.ndarray
     slopes: np.ndarray
     exact_below: float
 
     @staticmethod
-    def build(params: DipoleParams, max_mm: float, nodes: int = NODES) -> "ProfileTable":
+    def build(params: Profile, max_mm: float, nodes: int = NODES) -> "ProfileTable":
         """A table up to `max_mm` (farther pairs fall back to the closed form)."""
         top = max(float(max_mm), 1e-9) ** 2
         step = top / (nodes - 1)

@@ -1,4 +1,4 @@
-"""The offline reference every technique's ``verify`` compares against: the dipole sum over exact
+"""The offline reference every technique's ``verify`` compares against: the diffusion profile's sum over exact
 vertex pairs (no clustering, no precomputed directions) for one light, with visibility.
 
     L_c(x_o) = Σ_i ∫_{cell_i} Rd_c(|p - x_o|) dp · F_t(η, n_i·ω_i) max(0, n_i·ω_i) vis(x_i) E(x_i) / π
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sssbake.pipeline.core.dipole import DipoleParams, radius_for_energy, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import profile_for, profile_total, radius_for_energy
 from sssbake.pipeline.core.fresnel import fresnel_transmittance
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.near_field import NearField
@@ -87,7 +87,7 @@ def reference_scattering(surface: Surface, mm_per_unit: float, material: Materia
     instead, in float64 at separation 3 (~1e-3 of q from the exact sum), for meshes where the
     exact sum would take hours; the near field and energy limit are the same.
     """
-    p = DipoleParams.from_material(material)
+    p = profile_for(material)
     x = surface.positions * mm_per_unit
     if clustered:
         options = ScatterOptions(energy_dropped=energy_dropped, separation=3, float32=False)
@@ -102,7 +102,7 @@ def reference_scattering(surface: Surface, mm_per_unit: float, material: Materia
     out, fraction = _gather(field, np.repeat(irradiance[active, None], 3, axis=1), active, radius)
     # As in the bake (`scatter_operator._limit_energy`): a source sending out more than R_d in
     # all is scaled down as a whole.
-    limit = (1.0 - 1e-6) * total_diffuse_reflectance(p.alpha_prime, p.eta)[None, :]
+    limit = (1.0 - 1e-6) * profile_total(p)[None, :]
     over = np.flatnonzero((fraction > limit).any(axis=1))
     if len(over):
         cut = 1.0 - np.minimum(1.0, limit / np.maximum(fraction[over], 1e-300))  # share taken away

@@ -46,12 +46,12 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from sssbake.pipeline.core.dipole import (
-    DipoleParams,
+from sssbake.pipeline.core.profile import (
+    Profile,
     disc_integral,
     profile_derivatives,
+    profile_total,
     radius_for_energy,
-    total_diffuse_reflectance,
 )
 from sssbake.pipeline.core.freed_memory import release_freed_memory
 from sssbake.pipeline.core.morton import morton_codes
@@ -220,7 +220,7 @@ class FarLevel:
     starts: np.ndarray
 
 
-def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: DipoleParams,
+def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: Profile,
                      options: ScatterOptions = SCATTER_DEFAULTS) -> ScatterOperator:
     """Build the gather for a surface.
 
@@ -232,7 +232,7 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
         Triangles; each vertex owns a third of its triangles (its area ΔA, mm²).
     normals : (n, 3) float64
         Unit vertex normals: each source is a disc in its tangent plane.
-    params : DipoleParams
+    params : Profile
     options : ScatterOptions
 
     Returns
@@ -345,7 +345,7 @@ class ScatterPlan:
                                self.options.threads, self.options.block)
 
 
-def scatter_plan(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: DipoleParams,
+def scatter_plan(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: Profile,
                  options: ScatterOptions = SCATTER_DEFAULTS) -> ScatterPlan:
     """The hierarchy of `scatter_operator` (same arguments, `options.hierarchy` true) without its entries."""
     t0 = time.perf_counter()
@@ -420,10 +420,10 @@ def _checked(positions_mm, faces, normals, options: ScatterOptions):
     return x, tri, nrm, area
 
 
-def _radius(params: DipoleParams, options: ScatterOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _radius(params: Profile, options: ScatterOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(truncation radius, R_d, fraction of R_d beyond the radius), each (3,) per channel."""
     radius = radius_for_energy(options.energy_dropped, params)
-    total = total_diffuse_reflectance(params.alpha_prime, params.eta)
+    total = profile_total(params)
     kept = np.diagonal(disc_integral(radius, params))
     dropped = np.clip(np.where(total > 0, 1.0 - kept / np.where(total > 0, total, 1.0), 0.0), 0.0, 1.0)
     return radius, total, dropped
@@ -518,7 +518,7 @@ class _Clusters:
 class _Builder:
     """Computes the matrices' entries in chunks of rows, on `threads` threads."""
 
-    def __init__(self, params: DipoleParams, radius: np.ndarray, dtype, threads: int, field: NearField,
+    def __init__(self, params: Profile, radius: np.ndarray, dtype, threads: int, field: NearField,
                  closest: float = 0.0):
         self.params, self.radius, self.dtype, self.threads, self.field = params, radius, dtype, threads, field
         self.positions_t = field.positions.T.copy()  # (3, n): the far entries read coordinates apart
@@ -642,7 +642,7 @@ class _KernelTable:
     slope: np.ndarray  # value[..., i + 1] - value[..., i]
 
     @staticmethod
-    def build(params: DipoleParams, lo: float, hi: float) -> "_KernelTable":
+    def build(params: Profile, lo: float, hi: float) -> "_KernelTable":
         span = max(np.log(max(hi, lo) / lo), TABLE_STEP)
         nodes = int(np.ceil(span / TABLE_STEP)) + 2
         d = lo * np.exp(np.linspace(0.0, span, nodes))

@@ -1,4 +1,8 @@
-"""The thickness texture: one inward ray bake per covered atlas texel, gutters dilated."""
+"""The thickness texture: one inward ray bake per covered atlas texel, gutters dilated.
+
+A texel casts along its interpolated shading normal (`thickness` module docstring, Hard edges);
+its triangle's longest edge sets the depth of the winding-number probes.
+"""
 
 from __future__ import annotations
 
@@ -24,7 +28,8 @@ class ThicknessMap:
     mask : (H, W) bool
         Texels covered by a triangle.
     escaped : int
-        Covered texels whose rays left the surface (capped).
+        Covered texels most of whose rays did not end on the surface: they ended where the
+        winding number fell to 1/2, or found no inside (`thickness.bake_thickness`).
     """
 
     image: np.ndarray
@@ -60,8 +65,14 @@ def bake_thickness_map(
         for part, (pos, nrm) in zip(atlas.parts, vertices)
     ]
     texels = rasterize_atlas(parts, atlas.width, atlas.height)
+    # the texel's triangle sets the depth of the winding-number probes
+    corners = np.empty((len(texels.face), 3, 3))
+    for i, (_, faces, positions, _) in enumerate(parts):
+        mine = texels.part == i
+        corners[mine] = positions[faces[texels.face[mine]]]
     result = bake_thickness(
-        surface.positions, surface.faces, origins=texels.positions, directions=-texels.normals, cap=cap, rays=rays
+        surface.positions, surface.faces, origins=texels.positions, directions=-texels.normals,
+        probe=np.linalg.norm(corners[:, [1, 2, 0]] - corners, axis=2).max(axis=1), cap=cap, rays=rays,
     )
     image = np.zeros((atlas.height, atlas.width))
     image[texels.rows, texels.cols] = result.thickness

@@ -7,8 +7,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import total_diffuse_reflectance
-from sssbake.pipeline.core.materials import Material, material_from_spec
+from sssbake.pipeline.core.profile import total_for_albedo
+from sssbake.pipeline.core.materials import DEFAULT_PROFILE, Material, material_from_spec
 from sssbake.pipeline.mesh.scene import Scene, SourceMaterial
 from sssbake.pipeline.options import OPAQUE, BakeOptions
 
@@ -27,13 +27,13 @@ class Assignment:
     reasons: dict[int, str]
 
 
-def _spec_material(spec, name: str) -> Material | None:
+def _spec_material(spec, name: str, profile: str) -> Material | None:
     if isinstance(spec, str) and spec.lower() == OPAQUE:
         return None
-    return material_from_spec(spec, name)
+    return material_from_spec(spec, name, profile)
 
 
-def material_from_khr_volume(src: SourceMaterial, mm_per_unit: float) -> Material | None:
+def material_from_khr_volume(src: SourceMaterial, mm_per_unit: float, profile: str = DEFAULT_PROFILE) -> Material | None:
     """Scattering parameters from a glTF KHR_materials_volume attenuation and the base colour.
 
     Inverts sssbake's own fallback: the attenuation gives σ_tr = -ln(c)/d per channel, the base
@@ -49,19 +49,19 @@ def material_from_khr_volume(src: SourceMaterial, mm_per_unit: float) -> Materia
     if np.all(sigma_tr <= 0):
         return None
     eta = float(src.ior or 1.5)
-    rd_max = float(total_diffuse_reflectance(1.0 - 1e-9, eta))
+    rd_max = float(total_for_albedo(1.0 - 1e-9, eta, profile)[0])
     target = np.clip(np.asarray(src.base_color_factor[:3], dtype=np.float64), 1e-4, rd_max * (1 - 1e-6))
     # R_d is monotone in α': invert by bisection per channel.
     lo, hi = np.zeros(3), np.ones(3)
     for _ in range(60):
         mid = 0.5 * (lo + hi)
-        below = total_diffuse_reflectance(mid, eta) < target
+        below = total_for_albedo(mid, eta, profile) < target
         lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
     alpha = 0.5 * (lo + hi)
     # A channel with no attenuation would need infinite σ'_t; borrow the smallest positive σ_tr.
     sigma_tr = np.where(sigma_tr > 0, sigma_tr, sigma_tr[sigma_tr > 0].min())
     st = sigma_tr / np.sqrt(3.0 * (1.0 - alpha))
-    return Material(f"{src.name} (KHR_materials_volume)", alpha * st, (1.0 - alpha) * st, eta)
+    return Material(f"{src.name} (KHR_materials_volume)", alpha * st, (1.0 - alpha) * st, eta, profile)
 
 
 def assign_materials(scene: Scene, options: BakeOptions, mm_per_unit: float) -> Assignment:
@@ -92,14 +92,14 @@ def assign_materials(scene: Scene, options: BakeOptions, mm_per_unit: float) -> 
         src = materials[i]
         rule = next(((g, s) for g, s in options.materials if fnmatch.fnmatch(src.name.lower(), g.lower())), None)
         if rule is not None:
-            out[i] = _spec_material(rule[1], src.name)
+            out[i] = _spec_material(rule[1], src.name, options.profile)
             reasons[i] = f"material name matches rule {rule[0]!r}"
             continue
-        khr = material_from_khr_volume(src, mm_per_unit) if src.volume else None
+        khr = material_from_khr_volume(src, mm_per_unit, options.profile) if src.volume else None
         if khr is not None:
             out[i] = khr
             reasons[i] = "from the input's KHR_materials_volume attenuation and base colour"
             continue
-        out[i] = _spec_material(options.material, src.name)
+        out[i] = _spec_material(options.material, src.name, options.profile)
         reasons[i] = f"asset material {options.material!r}" if isinstance(options.material, str) else "asset material"
     return Assignment(replace(scene, meshes=meshes, materials=tuple(materials)), out, reasons)

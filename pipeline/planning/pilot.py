@@ -1,6 +1,7 @@
-"""The planner's pilot (``--budget-rmse``): the parameters of a planned technique chosen by measuring
-them on a subsample of the mesh, so the bake spends the fewest bytes and seconds that meet the
-error budget; `plan_check` then checks the choice on the full asset.
+"""The planner's pilot: every planned technique measured on a subsample of the mesh against the
+offline reference and against the fallback's baseline, best-fit Lambert; under an error budget
+(``--budget-rmse``) also its parameters chosen, so the bake spends the fewest bytes and seconds
+that meet the budget; `plan_check` then checks the choice on the full asset.
 
 The candidates of a technique run from cheap to dear (`candidates`: its ``pilot_candidates``, e.g.
 prt's byte budgets, screen's sample counts, lpv's grid resolutions), followed on a rigid mesh by
@@ -10,8 +11,16 @@ verify's light and camera) against the offline reference on the same subsample a
 first whose image RMSE is within the budget (a technique that ``pilot_measures_all`` measures
 every candidate, for the check's estimates; the others stop there). A technique that is its own
 reference (``pilot_reference``: lpv's heterogeneous medium, measured against the same field at
-twice the resolution) replaces the dipole's. When none meets it, the candidate with the least
+twice the resolution) replaces the profile's. When none meets it, the candidate with the least
 RMSE is chosen, and the reason says the budget was not met.
+
+Every candidate is also measured against best-fit Lambert (`verify.best_fit_lambert`: Lambert
+shading with the per-channel scale that best fits the same reference, what verify reports as
+``rmse_object_lambert``), both as object RMSE (over the pixels either covers, verify's
+``rmse_object``). Only a candidate that `beats_lambert` by ``lambert_margin`` and holds its bytes is
+eligible; when none is, the least RMSE is chosen all the same and the planner ships the fallback
+alone. Without a budget the pilot measures every candidate given (the planned or requested
+configurations) and chooses the first eligible.
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ import numpy as np
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.reference import Light, reference_scattering
 from sssbake.pipeline.core.surface import Surface, vertex_areas
+from sssbake.pipeline.core.visibility import direction_visibility
 from sssbake.pipeline.mesh.simplify import simplify
 from sssbake.pipeline.options import BakeOptions
 from sssbake.pipeline.render.image_metrics import rmse, shared_exposure
@@ -48,16 +58,19 @@ class Pilot:
         All of them, cheapest first (the check escalates through the ones after `chosen`).
     rows : tuple of dict
         One per measured candidate, in order: ``label``, ``technique``, ``rmse_image``,
-        ``seconds`` (its bake on the subsample), ``holds_bytes`` (False where prt's simplification
-        stopped above the reference points its budget allows: never chosen while another holds).
+        ``rmse_object`` and ``lambert_rmse_object`` (best-fit Lambert's against the same
+        reference), ``beats_lambert`` (by the options' ``lambert_margin``), ``seconds`` (its bake on
+        the subsample), ``holds_bytes`` (False where prt's simplification stopped above the
+        reference points its budget allows: never chosen while another holds).
     chosen : int
-        Index into `candidates`.
+        Index into `candidates`: eligible (``beats_lambert`` and ``holds_bytes``) whenever one is.
     met : bool
-        Whether the chosen candidate met the budget in the pilot.
+        Whether the chosen candidate met the budget in the pilot (any eligible one without a budget).
     vertices : int
         The subsample's vertices.
     reference : str
-        ``"dipole"`` or the technique's ``self_reference_label`` (heterogeneous lpv).
+        The material's profile model (``"montecarlo"``, ``"dipole"``) or the technique's
+        ``self_reference_label`` (heterogeneous lpv).
     """
 
     candidates: tuple
@@ -91,16 +104,24 @@ def pilot_surface(surface: Surface, vertices: int = PILOT_VERTICES) -> Surface:
                    vertex_areas=vertex_areas(s.positions, s.faces), weld=(np.arange(len(s.positions)),))
 
 
+def beats_lambert(rmse_object: float, lambert_rmse_object: float, margin: float) -> bool:
+    """Whether a technique's object RMSE is under (1 - `margin`) x best-fit Lambert's: with a
+    `margin` of 0, whether it is better than Lambert at all."""
+    return rmse_object < (1.0 - margin) * lambert_rmse_object
+
+
 def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, material: Material,
-              options: BakeOptions, budget: float, vertices: int, world: np.ndarray | None = None,
+              options: BakeOptions, budget: float | None, vertices: int, world: np.ndarray | None = None,
               light=None) -> Pilot:
-    """Measure `found` (`candidates`) in order on `surface`'s subsample and choose the first within
-    `budget` (module docstring).
+    """Measure `found` (`candidates`) in order on `surface`'s subsample and choose the first
+    eligible one within `budget` (module docstring).
 
     Parameters
     ----------
     surface : Surface
         The mesh's welded surface (file units).
+    budget : float or None
+        Image RMSE; None: measure every candidate, choose the first eligible.
     vertices : int
         The full surface's welded vertices (prt's counts are the full asset's).
     world : (4, 4) float64, optional
@@ -110,6 +131,7 @@ def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, mate
         World direction towards the light (`render.DEFAULT_LIGHT`, verify's, by default).
     """
     from sssbake.pipeline.render.renderer import Renderer, RenderLight, fit_camera
+    from sssbake.pipeline.verify.verify import best_fit_lambert, lambert_q
 
     if not found:
         raise ValueError("pilot: no candidate to measure")
@@ -123,7 +145,16 @@ def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, mate
     camera = fit_camera(small.positions @ world[:3, :3].T + world[:3, 3])
     lit = RenderLight(False, tuple(direction), 1.0)
     base = dict(positions=small.positions, normals=small.normals, faces=small.faces, model=world, eta=material.eta)
-    dipole, label = None, "dipole"  # the dipole's image, coverage and exposure, rendered when first needed
+    visible = direction_visibility(small.positions, small.faces, small.normals, local[None])[:, 0]
+    lambert = [{**base, "q": lambert_q(small.normals, local[None], visible)}]  # verify's, in the mesh's frame
+
+    def compared(reference: np.ndarray, mask: np.ndarray) -> tuple:
+        """`reference` (H, W, 3), its coverage `mask` (H, W), its exposure and best-fit Lambert's object RMSE."""
+        exposure = shared_exposure(reference, mask)
+        return reference, mask, exposure, best_fit_lambert(renderer, lambert, camera, lit, reference, mask, exposure)[2]
+
+    # `compared` for the diffusion profile's image, rendered when first needed; labelled by its model
+    profiled, label = None, material.profile
     memos = {}  # per technique, what its pilot items keep from one candidate to the next
     try:
         rows, chosen, met = [], None, False
@@ -135,24 +166,27 @@ def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, mate
             seconds = time.perf_counter() - t
             own = hooks.pilot_reference(item, small, merged, memo)
             if own is not None:
-                reference, mask = renderer.render([{**base, **own}], camera, lit)
-                exposure, label = shared_exposure(reference, mask), hooks.self_reference_label
+                reference, ref_mask, exposure, baseline = compared(*renderer.render([{**base, **own}], camera, lit))
+                label = hooks.self_reference_label
             else:
-                if dipole is None:
+                if profiled is None:
                     q = reference_scattering(small, mm_per_unit, material, Light("directional", tuple(local)))
-                    image, mask = renderer.render([{**base, "q": q.T}], camera, lit)
-                    dipole = image, shared_exposure(image, mask)
-                reference, exposure = dipole
-            error = rmse(renderer.render([{**base, **item}], camera, lit)[0], reference, exposure)
-            rows.append({"label": c.label, "technique": c.technique, "rmse_image": error, "seconds": seconds,
+                    profiled = compared(*renderer.render([{**base, "q": q.T}], camera, lit))
+                reference, ref_mask, exposure, baseline = profiled
+            image, mask = renderer.render([{**base, **item}], camera, lit)
+            error, error_object = rmse(image, reference, exposure), rmse(image, reference, exposure, ref_mask | mask)
+            beats = beats_lambert(error_object, baseline, options.lambert_margin)
+            rows.append({"label": c.label, "technique": c.technique, "rmse_image": error, "rmse_object": error_object,
+                         "lambert_rmse_object": baseline, "beats_lambert": beats, "seconds": seconds,
                          "holds_bytes": holds_bytes})
-            if error <= budget and holds_bytes and chosen is None:
+            if (budget is None or error <= budget) and holds_bytes and beats and chosen is None:
                 chosen, met = i, True
-            if chosen is not None and not hooks.pilot_measures_all:
+            if chosen is not None and budget is not None and not hooks.pilot_measures_all:
                 break
     finally:
         renderer.release()
-    if chosen is None:  # the least RMSE, among the candidates that held their bytes if any did
-        held = [i for i, r in enumerate(rows) if r["holds_bytes"]] or range(len(rows))
-        chosen = min(held, key=lambda i: rows[i]["rmse_image"])
+    if chosen is None:  # the least RMSE, among the eligible candidates, else those that held their bytes, if any
+        eligible = ([i for i, r in enumerate(rows) if r["holds_bytes"] and r["beats_lambert"]]
+                    or [i for i, r in enumerate(rows) if r["holds_bytes"]] or range(len(rows)))
+        chosen = min(eligible, key=lambda i: rows[i]["rmse_image"])
     return Pilot(tuple(found), tuple(rows), chosen, met, len(small.positions), label)

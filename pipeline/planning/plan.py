@@ -20,6 +20,14 @@ Per translucent (mesh, material), in order, the first rule that applies:
 Opaque materials (by assignment) get nothing. With an error budget (``budget_rmse``) the
 technique's parameters come from a pilot on a subsample (`plan_pilot`, `piloted`), which may also
 turn screen into prt; otherwise parameters not set by a rule keep the bake's defaults.
+
+Never worse than the fallback: the pilot measures every planned technique (without a budget, its
+planned configuration alone: `planned_candidate`) against best-fit Lambert on its subsample, and
+the plan ships it only when its object RMSE is under (1 - ``lambert_margin``) x Lambert's;
+otherwise the standard fallback alone, the reason giving both figures (`lambert_verdict`).
+Techniques the user names (``--techniques T``) are baked as asked, measured the same way where
+they have a pilot (`requested_checks`). `worse_than_lambert` and `lambert_line` mark and count
+what a bake shipped worse than Lambert, for the batch summary and the HTML report.
 """
 
 from __future__ import annotations
@@ -30,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import DipoleParams, radius_holding
+from sssbake.pipeline.core.profile import profile_for, radius_holding
 from sssbake.pipeline.core.directions import direction_set
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.clean import clean_scene
@@ -39,8 +47,11 @@ from sssbake.pipeline.mesh.scale import instance_scale, resolve_scale_mm
 from sssbake.pipeline.mesh.thickness import bake_thickness
 from sssbake.pipeline.options import BakeOptions
 from sssbake.pipeline.planning.assign import assign_materials
+from sssbake.pipeline.planning.pilot import beats_lambert, candidates, run_pilot
 from sssbake.pipeline.techniques.lpv.stage import LPV_COARSE
 from sssbake.pipeline.techniques.prt.compress import budget_reference_count
+from sssbake.pipeline.techniques.registry import technique
+from sssbake.pipeline.techniques.technique import Candidate
 
 #: Below this many diffusion lengths of median thickness, light crosses the object.
 THIN = 4.0
@@ -73,6 +84,9 @@ class PlanEntry:
         With a budget (`piloted`): ``budget``, ``vertices`` (the subsample's), ``reference``,
         ``candidates`` (``label``, ``technique``, ``params``), ``rows`` (`plan_pilot.Pilot`),
         ``chosen`` (the pilot's pick), ``met``, ``pick`` (the candidate baked).
+    lambert_check : dict
+        The pilot's verdict against best-fit Lambert (`lambert_record`); empty when nothing was
+        measured (no technique planned).
     """
 
     asset: str
@@ -83,6 +97,7 @@ class PlanEntry:
     reasons: tuple[str, ...] = ()
     measures: dict = field(default_factory=dict)
     pilot: dict = field(default_factory=dict)
+    lambert_check: dict = field(default_factory=dict)
 
     @property
     def key(self) -> str:
@@ -92,7 +107,8 @@ class PlanEntry:
     def to_json(self) -> dict:
         return {"asset": self.asset, "mesh": self.mesh, "material": self.material,
                 "techniques": list(self.techniques), "params": self.params, "reasons": list(self.reasons),
-                "measures": self.measures, **({"pilot": self.pilot} if self.pilot else {})}
+                "measures": self.measures, **({"pilot": self.pilot} if self.pilot else {}),
+                **({"lambert_check": self.lambert_check} if self.lambert_check else {})}
 
 
 def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
@@ -125,7 +141,10 @@ def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
                                          (f"opaque: {assignment.reasons.get(m, 'no scattering material')}",)))
                 continue
             if thickness is None:  # one thickness bake per mesh, only for translucent meshes
-                thickness = bake_thickness(surface.positions, surface.faces, surface.normals, cap=diagonal).thickness
+                # as the bake's thickness stage: hard edges where the normals are split
+                split = np.concatenate([p.normals for p in clean.scene.meshes[mi].primitives])
+                thickness = bake_thickness(surface.positions, surface.faces, surface.normals, cap=diagonal,
+                                           split_normals=(np.concatenate(surface.weld), split)).thickness
             entry = decide(str(path), mesh.name, name, material, mesh.deforming, options, surface, thickness, mesh_mm)
             entries.append(with_pilot(entry, surface, mesh_mm, material, mesh.deforming, options,
                                       (instances.get(mi) or [None])[0]))
@@ -134,8 +153,9 @@ def plan_asset(path: str | Path, options: BakeOptions) -> list[PlanEntry]:
 
 def with_pilot(entry: PlanEntry, surface: Surface, mesh_mm: float, material, deforming: bool, options: BakeOptions,
                world: np.ndarray | None = None, pick: int | None = None, measure=None) -> PlanEntry:
-    """`entry` after the pilot (`plan_pilot`, `piloted`) when `options.budget_rmse` is set and it
-    plans a technique; `entry` itself otherwise.
+    """`entry` after the pilot (`plan_pilot`) when it plans a technique, `entry` itself otherwise:
+    under `options.budget_rmse` with the candidate it chooses (`piloted`), and either way with the
+    fallback alone when that does not beat best-fit Lambert (`lambert_verdict`).
 
     Parameters
     ----------
@@ -146,14 +166,130 @@ def with_pilot(entry: PlanEntry, surface: Surface, mesh_mm: float, material, def
     measure : callable, optional
         Called with `plan_pilot.run_pilot`'s arguments in its place (the bake caches it as a stage).
     """
-    if options.budget_rmse is None or not entry.techniques:
+    if not entry.techniques:
         return entry
-    from sssbake.pipeline.planning.pilot import candidates, run_pilot
+    budget, vertices = options.budget_rmse, len(surface.positions)
+    if budget is None:
+        found = [planned_candidate(entry.techniques[0], entry.params, options, vertices, "planned")]
+    else:
+        found = candidates(entry.techniques[0], entry.params, options, vertices, deforming)
+    pilot = (measure or run_pilot)(found, surface, mesh_mm, material, options, budget, vertices, world)
+    return lambert_verdict(entry if budget is None else piloted(entry, pilot, budget, pick), pilot, pick,
+                           options.lambert_margin)
 
-    found = candidates(entry.techniques[0], entry.params, options, len(surface.positions), deforming)
-    pilot = (measure or run_pilot)(found, surface, mesh_mm, material, options, options.budget_rmse,
-                                   len(surface.positions), world)
-    return piloted(entry, pilot, options.budget_rmse, pick)
+
+def requested_checks(mesh: str, name: str, techniques: tuple[str, ...], surface: Surface, mesh_mm: float, material,
+                     options: BakeOptions, world: np.ndarray | None = None, measure=None) -> list[dict]:
+    """`lambert_record`s of the `techniques` the user named (``--techniques T``) on material `name`
+    of `mesh`, measured as the planner's are, but all shipped: the user asked for them. Those
+    without a pilot (``pilot_item``: kernels, spectral) are not measured here; ``--report``
+    verifies them on the full asset.
+
+    Parameters
+    ----------
+    surface : Surface
+        The mesh's welded surface (file units).
+    world : (4, 4) float64, optional
+        The mesh's first instance's world matrix.
+    measure : callable, optional
+        As in `with_pilot`.
+    """
+    vertices = len(surface.positions)
+    records = []
+    for t in techniques:
+        if hasattr(technique(t), "pilot_item"):  # one pilot each: a technique dropped leaves the others' cached
+            found = [planned_candidate(t, {}, options, vertices, "requested")]
+            # no budget: a budget only checks what the user named
+            pilot = (measure or run_pilot)(found, surface, mesh_mm, material, options, None, vertices, world)
+            records.append(lambert_record(mesh, name, pilot, 0, options.lambert_margin, True))
+    return records
+
+
+def planned_candidate(name: str, params: dict, options: BakeOptions, vertices: int, why: str) -> Candidate:
+    """Technique `name` as the bake runs it under `options` with the plan's `params`, a pilot
+    candidate labelled ``"<name> (<why>...)"``, for a mesh of `vertices` welded vertices.
+
+    prt's pilot spends a byte budget on the full asset's reference points (`prt_pilot`); a bake
+    without one spends its reference fraction (at least its floor), so the candidate gets the least
+    budget that buys as many points."""
+    merged = options.merged(params)
+    if name != "prt" or merged.prt_byte_budget is not None:
+        return Candidate(name, dict(params), f"{name} ({why})")
+    prt = merged.technique_options("prt")
+    points = min(vertices, max(3, prt.reference_floor, round(prt.reference_fraction * vertices)))
+    ds = direction_set(prt.directions)
+
+    def held(budget: float) -> int:
+        try:
+            return budget_reference_count(budget, vertices, ds, prt.sh_order, prt.tables, prt.weight_bits,
+                                          prt.detail_order)
+        except ValueError:  # not even 3 points
+            return 0
+
+    low, high = 0.0, 1.0
+    while held(high) < points:
+        low, high = high, 2.0 * high
+    for _ in range(40):  # the count rises one point at a time with the budget: the least that holds them
+        middle = 0.5 * (low + high)
+        low, high = (low, middle) if held(middle) >= points else (middle, high)
+    return Candidate(name, {**params, "prt_byte_budget": high, "prt_reference_floor": 0},
+                     f"{name} ({why}, {points} reference points)")
+
+
+def lambert_record(mesh: str, name: str, pilot, at: int, margin: float, shipped: bool) -> dict:
+    """What the pilot (`plan_pilot.Pilot`) measured of its candidate `at` on material `name` of
+    `mesh` against best-fit Lambert: ``mesh``, ``material``, ``technique``, ``label``, ``params``
+    (the candidate's), ``vertices`` (the subsample's), ``reference``, ``rmse_object``,
+    ``lambert_rmse_object``, ``margin``, ``beats_lambert`` (by `margin`), ``shipped``."""
+    c, row = pilot.candidates[at], pilot.rows[at]
+    return {"mesh": mesh, "material": name, "technique": c.technique, "label": c.label, "params": dict(c.params),
+            "vertices": pilot.vertices, "reference": pilot.reference, "rmse_object": row["rmse_object"],
+            "lambert_rmse_object": row["lambert_rmse_object"], "margin": margin,
+            "beats_lambert": row["beats_lambert"], "shipped": shipped}
+
+
+def worse_than_lambert(report: dict) -> list[dict]:
+    """The techniques a bake `report` shipped that its pilot measured worse than best-fit Lambert
+    (not better at all: `plan_pilot.beats_lambert` with no margin), each its `plan.lambert_record`
+    (``--techniques auto`` ships none it measured so; a technique the user named may be)."""
+    return [c for c in report.get("lambert_checks", [])
+            if c["shipped"] and not beats_lambert(c["rmse_object"], c["lambert_rmse_object"], 0.0)]
+
+
+def lambert_line(marks: list[dict], measured: str) -> str | None:
+    """One line counting `marks` (each ``asset``, ``technique``, ``rmse_object``,
+    ``lambert_rmse_object``, and ``mesh`` and ``material`` where measured per material) and naming
+    each with both figures, `measured` saying where (e.g. ``"on the pilot's subsample"``); None for
+    none."""
+    if not marks:
+        return None
+    named = "; ".join(f"{Path(m['asset']).name}{' ' + m['mesh'] + '/' + m['material'] if 'mesh' in m else ''} "
+                      f"{m['technique']} {m['rmse_object']:.4f} against {m['lambert_rmse_object']:.4f}" for m in marks)
+    return (f"{len(marks)} technique{'s' if len(marks) > 1 else ''} worse than best-fit Lambert (object RMSE "
+            f"{measured}): {named}")
+
+
+def lambert_verdict(entry: PlanEntry, pilot, pick: int | None, margin: float) -> PlanEntry:
+    """`entry` (its technique the pilot's candidate `pick`, or its choice) with the pilot's figures
+    against best-fit Lambert in a reason and its `lambert_check`, or, when they do not show it
+    under (1 - `margin`) x Lambert's, the standard fallback alone. A candidate the budget check
+    picked that the pilot never measured stands as it is."""
+    at = pilot.chosen if pick is None else pick
+    if at >= len(pilot.rows):
+        return entry
+    row = pilot.rows[at]
+    record = lambert_record(entry.mesh, entry.material, pilot, at, margin, row["beats_lambert"])
+    figures = (f"pilot on {pilot.vertices} vertices, object RMSE against the {pilot.reference} reference: "
+               f"{pilot.candidates[at].label} {row['rmse_object']:.4f}, "
+               f"best-fit Lambert {row['lambert_rmse_object']:.4f}")
+    if row["beats_lambert"]:
+        return replace(entry, reasons=entry.reasons + (f"{figures}: under {1 - margin:g} x Lambert's, shipped",),
+                       lambert_check=record)
+    # the pilot prefers a candidate that beats Lambert and holds its bytes: its own choice failing means none did
+    others = " (nor does any other that holds its bytes)" if pick is None and len(pilot.rows) > 1 else ""
+    return replace(entry, techniques=(), params={}, lambert_check=record,
+                   reasons=entry.reasons + (f"{figures}: not under {1 - margin:g} x Lambert's{others}; the standard "
+                                            "fallback only",))
 
 
 def piloted(entry: PlanEntry, pilot, budget: float, pick: int | None = None) -> PlanEntry:
@@ -169,7 +305,7 @@ def piloted(entry: PlanEntry, pilot, budget: float, pick: int | None = None) -> 
         verdict = f"{c.label}, the cheapest within it"
     else:
         verdict = f"none within it; {c.label}, the least RMSE"
-    reason = (f"pilot on {pilot.vertices} vertices, image RMSE against the {pilot.reference} (budget {budget:g}): "
+    reason = (f"pilot on {pilot.vertices} vertices, image RMSE against the {pilot.reference} reference (budget {budget:g}): "
               f"{measured}; {verdict}")
     params = {**entry.params, **c.params} if c.technique in entry.techniques else dict(c.params)
     record = {"budget": budget, "vertices": pilot.vertices, "reference": pilot.reference,
@@ -197,7 +333,7 @@ def decide(asset: str, mesh: str, name: str, material, deforming: bool, options:
     diagonal_mm, longest_mm = float(np.linalg.norm(extent)), float(extent.max())
     thickness_mm = area_median(thickness, surface.vertex_areas) * mesh_mm
     vertices = len(surface.positions)
-    params = DipoleParams.from_material(material)
+    params = profile_for(material)
     sigma_tr = np.asarray(params.sigma_tr, dtype=np.float64)
     diffusion = 1.0 / np.maximum(sigma_tr, 1e-12)
     radius = float(radius_holding(params, 0.5).max())

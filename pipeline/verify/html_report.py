@@ -3,7 +3,9 @@
 Per asset: its status and warnings, the planner's decisions (``--techniques auto``), and per
 technique it baked the bytes per vertex, the bake's seconds and, verified against the offline
 reference (`plan_check.check_technique`, small images), the image RMSE, the frame times and the
-picture (reference | technique | Lambert). A bake under a budget (``--budget-rmse``) brings its
+picture (reference | technique | Lambert). Each row says whether the technique is worse than
+best-fit Lambert (the full asset's figures, or where it was not verified its pilot's), and the page
+counts and names those that are. A bake under a budget (``--budget-rmse``) brings its
 own check's figures, and the page plots what its pilot measured per candidate beside what the full
 asset measured (`plan_check`). A Pareto plot (matplotlib) puts every verified technique of the
 batch at its bytes per vertex and frame-time ratio against its RMSE. Images are inline PNG (base64)
@@ -19,11 +21,13 @@ import json
 from pathlib import Path
 
 from sssbake.exporters.atomic import atomic_path
+from sssbake.pipeline.planning.pilot import PILOT_SIZE, beats_lambert
+from sssbake.pipeline.planning.plan import lambert_line, worse_than_lambert
 from sssbake.pipeline.techniques.registry import BY_NAME, NAMES
 
 STYLE = """body{font-family:sans-serif;margin:2em;color:#222}table{border-collapse:collapse;margin:.5em 0}
 td,th{border:1px solid #bbb;padding:.25em .6em;text-align:left}th{background:#eee}img{max-width:100%}
-.failed{color:#b00}.asset{margin-bottom:2.5em}"""
+.failed,.worse{color:#b00}.asset{margin-bottom:2.5em}"""
 
 
 def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse: float | None = None) -> Path:
@@ -42,6 +46,7 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse:
 
     out_dir = Path(out_dir)
     sections, points = [], []
+    worse, worse_pilot = [], []  # marks (`plan.lambert_line`): from the full asset's figures, from the pilot's
     for record in summary["assets"]:
         name = html.escape(record["asset"])
         if record["status"] == "failed":
@@ -58,12 +63,24 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse:
             figures = check.get("figures", {}).get(technique)
             if figures is None:
                 figures = check_technique(glb, technique, report["vertices"], out_dir / ".report") if verify else {}
-            rows.append(_technique_row(technique, report, figures, budget))
             if "rmse_image" in figures:
                 points.append((f"{Path(record['asset']).stem} {technique}", figures, budget))
+                worsened = not beats_lambert(figures["rmse_object"], figures["rmse_object_lambert"], 0.0)
+                if worsened:
+                    worse.append({"asset": record["asset"], "technique": technique,
+                                  "rmse_object": figures["rmse_object"],
+                                  "lambert_rmse_object": figures["rmse_object_lambert"]})
+            else:
+                marks = [m for m in worse_than_lambert(report) if m["technique"] == technique]
+                worse_pilot += [{"asset": record["asset"], **m} for m in marks]
+                worsened = bool(marks)
+            rows.append(_technique_row(technique, report, figures, budget, worsened))
         sections.append(_asset_section(name, record, report, rows))
     body = "".join(sections)
     plot = _pareto(points) if points else ""
+    lines = [lambert_line(worse, f"at {PILOT_SIZE}² on the full asset"),
+             lambert_line(worse_pilot, "on the pilot's subsample; not verified")]
+    plot = "".join(f"<p class='worse'>{html.escape(line)}</p>" for line in lines if line) + plot
     budgets = {b for _, _, b in points if b is not None}
     if budgets:
         within = sum(b is not None and f["rmse_image"] <= b for _, f, b in points)
@@ -89,7 +106,8 @@ def _asset_section(name: str, record: dict, report: dict, rows: list[str]) -> st
     if report.get("check"):
         plan_table += _check_section(report)
     table = ("<table><tr><th>technique</th><th>bytes / vertex</th><th>RMSE image</th><th>RMSE object</th>"
-             "<th>Lambert RMSE</th><th>frame ms (plain)</th><th>budget</th><th>reference | technique | Lambert</th></tr>"
+             "<th>Lambert RMSE</th><th>vs best-fit Lambert</th><th>frame ms (plain)</th><th>budget</th>"
+             "<th>reference | technique | Lambert</th></tr>"
              f"{''.join(rows)}</table>") if rows else "<p>No technique baked: the standard fallback only.</p>"
     check = report.get("check")
     spent = (f" (the last of {len(check['attempts'])}; with the pilot and the checks {check['seconds']:.1f} s)"
@@ -99,17 +117,23 @@ def _asset_section(name: str, record: dict, report: dict, rows: list[str]) -> st
             f"{plan_table}{table}</div>")
 
 
-def _technique_row(technique: str, report: dict, figures: dict, budget: float | None) -> str:
+def _technique_row(technique: str, report: dict, figures: dict, budget: float | None, worse: bool) -> str:
+    """One technique's row; `worse`: worse than best-fit Lambert (on the full asset when verified,
+    else in its pilot)."""
     blocks = list(report[technique].values())
     per_vertex = BY_NAME[technique].bytes_per_vertex(blocks[0])
+    mark = "<td class='worse'>worse</td>" if worse else "<td>—</td>"
     if "error" in figures or "skipped" in figures:
         line = figures.get("error", figures.get("skipped"))
-        return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='6'>{html.escape(line)}</td></tr>"
+        return (f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='3'>{html.escape(line)}</td>{mark}"
+                "<td colspan='3'></td></tr>")
     if not figures:
-        return f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='6'>not verified</td></tr>"
+        return (f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='3'>not verified</td>{mark}"
+                "<td colspan='3'></td></tr>")
     picture = base64.b64encode(Path(figures["pngs"]["comparison"]).read_bytes()).decode()
     return (f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td>{figures['rmse_image']:.4f}</td>"
             f"<td>{figures['rmse_object']:.4f}</td><td>{figures['rmse_object_lambert']:.4f}</td>"
+            f"{mark if worse else '<td>better</td>'}"
             f"<td>{figures['frame_ms_sss']:.1f} ({figures['frame_ms_plain']:.1f})</td>"
             + ("<td>—</td>" if budget is None else
                f"<td>{'within' if figures['rmse_image'] <= budget else 'over'} {budget:g}</td>") +

@@ -29,9 +29,11 @@ from sssbake.exporters.gltf_tables import SssbakeGltf, load_sssbake_gltf
 from sssbake.pipeline.core.errors import VerifyError
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.reference import Light, reference_scattering
+from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.core.visibility import direction_visibility, point_visibility
 from sssbake.pipeline.mesh.clean import WELD_TOLERANCE, weld_surface
 from sssbake.pipeline.mesh.load import load_scene
+from sssbake.pipeline.mesh.scene import Primitive, Scene
 from sssbake.pipeline.render.image_metrics import (
     best_fit_scale,
     rmse,
@@ -99,23 +101,12 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         raise VerifyError(f"verify: technique must be one of {list(NAMES)}, got {technique!r}")
     hooks = BY_NAME[technique]
     path = Path(path)
-    light_world = np.asarray(light_dir, dtype=np.float64)
-    if light_world.shape != (3,) or not np.all(np.isfinite(light_world)) or not np.linalg.norm(light_world) > 0:
-        raise VerifyError(f"verify: light direction must be three finite numbers, not all zero, got {light_dir}")
-    light_world = light_world / np.linalg.norm(light_world)
+    light_world = light_direction(light_dir)
     point = None if light_pos is None else np.asarray(light_pos, dtype=np.float64)
     if point is not None and (point.shape != (3,) or not np.all(np.isfinite(point))):
         raise VerifyError(f"verify: light position must be three finite numbers, got {light_pos}")
     data = hooks.read(path)
-    file = load_sssbake_gltf(path, required=True)
-    scene = load_scene(str(path))
-    instances = []
-    for mi, worlds in sorted(scene.mesh_instances().items()):
-        held = [pi for pi in range(len(scene.meshes[mi].primitives)) if (mi, pi) in data]
-        units = [[pi] for pi in held] if hooks.draw_unit == "primitive" else ([held] if held else [])
-        instances += [(mi, unit, world) for unit in units for world in worlds]
-    if not instances:
-        raise VerifyError(f"verify: {path} has no drawable primitive with {technique} data")
+    file, scene, instances = draw_instances(path, technique, data)
     mm_world = {_scale_mm(file, mi) for mi, _, _ in instances}
     if point is not None:
         scales = [abs(np.linalg.det(world[:3, :3])) for _, _, world in instances]
@@ -134,14 +125,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     runtime, memo = {"lpv_steps": lpv_steps}, {}  # the hooks' settings and what they keep across units
     t_ref = time.perf_counter()
     for mi, unit, world in instances:
-        prims = [scene.meshes[mi].primitives[pi] for pi in unit]
-        prim = merged_primitive(prims)
-        material = _material(file, prims[0].material)
-        mm = _scale_mm(file, mi)
-        # Seam vertices share positions: weld them, or a zero distance would read Rd(0).
-        diagonal = float(np.linalg.norm(np.ptp(prim.positions, axis=0)))
-        surface = weld_surface([prim], WELD_TOLERANCE * diagonal)
-        weld = surface.weld[0]
+        prim, material, mm, surface, weld = unit_surface(file, scene, mi, unit)
         linear = world[:3, :3]
         if point is None:
             omega = np.linalg.solve(linear, light_world)
@@ -159,7 +143,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
             weight = visible * intensity / np.maximum(distance * mm, 1e-300) ** 2
         base = dict(positions=prim.positions, normals=prim.normals, faces=prim.faces, model=world, eta=material.eta)
         at = VerifyUnit(mi, tuple(unit), prim, surface, weld, mm, material, file.extension(file.gltf.meshes[mi]), base,
-                        partial(_lambert_q, towards=towards, weight=weight))
+                        partial(lambert_q, towards=towards, weight=weight))
         own = hooks.reference_item(path, at, data, runtime, memo)
         if own is not None:
             ref_items.append(own[0])
@@ -195,7 +179,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         fit = best_fit_scale(drawn, reference, ref_mask)
         return drawn * fit, fit
 
-    lambert, scale = fitted(renderer.render(lambert_items, camera, light)[0])
+    lambert, scale, lambert_error = best_fit_lambert(renderer, lambert_items, camera, light, reference, ref_mask,
+                                                     exposure)
     shot = VerifyShot(renderer, camera, light, image, reference, ref_mask, ref_mask | mask, exposure, lambert > 0,
                       fitted)
     image, pictures, extra = hooks.verify_figures(drawn, sss_items, shot)
@@ -223,7 +208,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
                                      hooks.self_reference_label),
         "rmse_image": rmse(image, reference, exposure),
         "rmse_object": rmse(image, reference, exposure, ref_mask | mask),
-        "rmse_object_lambert": rmse(lambert, reference, exposure, ref_mask),
+        "rmse_object_lambert": lambert_error,
         "lambert_scale": scale.tolist(),
         "bytes_per_vertex": hooks.bytes_per_vertex(technique_reports[0]) if technique_reports else None,
         "bake_seconds": report.get("seconds"),
@@ -239,6 +224,42 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         **({"reference_resolution": max(r for r, _ in self_references),
             "reference_steps": max(st for _, st in self_references)} if self_references else {}),
     }
+
+
+def light_direction(light_dir) -> np.ndarray:
+    """(3,) float64 unit vector of `light_dir` (three finite numbers, not all zero; VerifyError otherwise)."""
+    light = np.asarray(light_dir, dtype=np.float64)
+    if light.shape != (3,) or not np.all(np.isfinite(light)) or not np.linalg.norm(light) > 0:
+        raise VerifyError(f"verify: light direction must be three finite numbers, not all zero, got {light_dir}")
+    return light / np.linalg.norm(light)
+
+
+def draw_instances(path: Path, technique: str, data: dict) -> tuple[SssbakeGltf, Scene, list]:
+    """What verify draws of `path`: its sssbake data, its scene and one ``(mesh, primitives,
+    world)`` per draw unit (`Technique.draw_unit`) of every mesh instance holding `technique`'s
+    `data` (``world`` (4, 4) float64 object to world); VerifyError when there is none."""
+    file = load_sssbake_gltf(path, required=True)
+    scene = load_scene(str(path))
+    instances = []
+    for mi, worlds in sorted(scene.mesh_instances().items()):
+        held = [pi for pi in range(len(scene.meshes[mi].primitives)) if (mi, pi) in data]
+        units = [[pi] for pi in held] if BY_NAME[technique].draw_unit == "primitive" else ([held] if held else [])
+        instances += [(mi, unit, world) for unit in units for world in worlds]
+    if not instances:
+        raise VerifyError(f"verify: {path} has no drawable primitive with {technique} data")
+    return file, scene, instances
+
+
+def unit_surface(file: SssbakeGltf, scene: Scene, mesh: int, primitives: list[int]
+                 ) -> tuple[Primitive, Material, float, Surface, np.ndarray]:
+    """One draw unit's primitives of `mesh` merged (n render vertices), their material, the mesh's
+    millimetres per unit, their welded surface and the (n,) welded vertex of each render vertex."""
+    prims = [scene.meshes[mesh].primitives[pi] for pi in primitives]
+    prim = merged_primitive(prims)
+    # Seam vertices share positions: weld them, or a zero distance would read Rd(0).
+    diagonal = float(np.linalg.norm(np.ptp(prim.positions, axis=0)))
+    surface = weld_surface([prim], WELD_TOLERANCE * diagonal)
+    return prim, _material(file, prims[0].material), _scale_mm(file, mesh), surface, surface.weld[0]
 
 
 def reference_label(reference_sum: str, dipoles: int, self_references: int, self_label: str | None) -> str:
@@ -296,7 +317,36 @@ def stock_figures(path: Path, positions: list[np.ndarray], camera, light, size: 
             "stock_scale": best_fit_scale(stock, reference, mask).tolist(), **figures, "stock_seconds": seconds}
 
 
-def _lambert_q(field: np.ndarray, towards: np.ndarray, weight: np.ndarray) -> np.ndarray:
+def best_fit_lambert(renderer: Renderer, items: list[dict], camera, light, reference: np.ndarray, mask: np.ndarray,
+                     exposure: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The baseline a technique must beat, shared by verify and the planner's pilot: Lambert
+    `items` (``q`` from `lambert_q`) drawn under `camera` and `light`, times the per-channel scale
+    that best fits `reference` over its coverage `mask` (a normal field sets where light lands,
+    not the material's albedo).
+
+    Parameters
+    ----------
+    reference : (H, W, 3) float
+    mask : (H, W) bool
+    exposure : float
+        The comparison's shared exposure.
+
+    Returns
+    -------
+    image : (H, W, 3) float
+        The fitted Lambert.
+    scale : (3,) float64
+        The fit (``lambert_scale``).
+    rmse_object : float
+        Its RMSE against `reference` over `mask` (``rmse_object_lambert``).
+    """
+    drawn = renderer.render(items, camera, light)[0]
+    scale = best_fit_scale(drawn, reference, mask)
+    image = drawn * scale
+    return image, scale, rmse(image, reference, exposure, mask)
+
+
+def lambert_q(field: np.ndarray, towards: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """(n, 3) grey q of unit normals `field` (n, 3) at the render vertices: clip(n · towards, 0) ·
     weight, `towards` (1, 3) or (n, 3) unit vectors to the light, `weight` (n,) its visible
     irradiance."""
@@ -317,7 +367,7 @@ def _material(file: SssbakeGltf, index: int | None) -> Material:
         data = (file.extension(file.gltf.materials[index]) or {}).get("material")
     if not data:
         raise VerifyError(f"verify: {file.path}: a scattering primitive's material has no SSSBAKE_subsurface.material")
-    return Material(data["name"], tuple(data["sigma_s_prime"]), tuple(data["sigma_a"]), float(data["eta"]))
+    return Material.from_json(data)
 
 
 def _bake_report(path: Path) -> dict:

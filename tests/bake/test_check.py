@@ -35,6 +35,23 @@ def test_over_the_budget_the_pilot_is_scaled_by_what_the_full_asset_measured():
     assert next_picks(short, {"lpv": {"rmse_image": 0.05}}, 0.02, [{}]) == {"m/x": 3}
 
 
+def test_the_check_never_moves_to_a_candidate_worse_than_best_fit_lambert():
+    plan = [entry([0.04, 0.03, 0.02, 0.015, 0.01], ["prt"] * 5, pick=2)]
+    plan[0]["pilot"]["rows"][4]["beats_lambert"] = False
+    # over the budget at 1.5x: 4 (0.015) is expected within but does not beat Lambert; 3 (0.0225), the least left
+    assert next_picks(plan, {"prt": {"rmse_image": 0.03}}, 0.02, [{}]) == {"m/x": 3}
+    plan[0]["pilot"]["rows"][3]["beats_lambert"] = False
+    assert next_picks(plan, {"prt": {"rmse_image": 0.03}}, 0.02, [{}]) is None  # nothing dearer beats it
+    # within the budget at 0.5x: the cheapest expected within (0), unless it does not beat Lambert
+    cheap = [entry([0.03, 0.025, 0.015], ["prt"] * 3, pick=2)]
+    cheap[0]["pilot"]["rows"][0]["beats_lambert"] = False
+    assert next_picks(cheap, {"prt": {"rmse_image": 0.0075}}, 0.02, [{}]) == {"m/x": 1}
+    # an entry none of whose candidates beat Lambert bakes the fallback alone: nothing to move
+    fallback = [entry([0.04, 0.03], ["prt", "prt"], pick=1)]
+    fallback[0]["techniques"] = []
+    assert next_picks(fallback, {}, 0.02, [{}]) is None
+
+
 def test_within_the_budget_a_cheaper_candidate_is_tried_and_nothing_new_ends_it():
     mixed = ["screen", "screen", "prt", "prt"]
     plan = [entry([0.05, 0.045, 0.03, 0.015], mixed, pick=3)]

@@ -13,23 +13,25 @@ from PIL import Image
 from sssbake.pipeline.bake.batch import run_batch
 from sssbake.pipeline.bake.fallback import make_fallback, slab_totals
 from sssbake.pipeline.config import load_config
-from sssbake.pipeline.core.dipole import DipoleParams, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import classical_dipole, profile_for, total_reflectance
 from sssbake.pipeline.core.materials import Material, preset
 
 
+@pytest.mark.parametrize("model", ["montecarlo", "dipole"])
 @pytest.mark.parametrize("name", ["marble", "skin1", "cream", "ketchup"])
-def test_slab_limits(name):
-    p = DipoleParams.from_material(preset(name))
-    rd = total_diffuse_reflectance(p.alpha_prime, p.eta)
+def test_slab_limits(name, model):
+    m = preset(name, model)
+    p = profile_for(m)
+    rd = total_reflectance(p)  # a thick slab reflects what the model's semi-infinite medium does
     thick = 200.0 / p.sigma_tr.min()
-    r, t = slab_totals(p, thick)
+    r, t = slab_totals(m, thick)
     np.testing.assert_allclose(r, rd, rtol=1e-9)
     np.testing.assert_allclose(t, 0.0, atol=1e-12)
-    r0, t0 = slab_totals(p, 0.0)  # nothing there: everything passes
+    r0, t0 = slab_totals(m, 0.0)  # nothing there: everything passes
     np.testing.assert_allclose(r0, 0.0, atol=1e-12)
     np.testing.assert_allclose(t0, 1.0, rtol=1e-12)
     ds = np.geomspace(0.01, 100.0, 40)
-    rs, ts = np.array([slab_totals(p, d) for d in ds]).transpose(1, 0, 2)
+    rs, ts = np.array([slab_totals(m, d) for d in ds]).transpose(1, 0, 2)
     # thicker: transmits less; reflects at most a little over R_d (a source shallower than z_r
     # where d < 2 z_r); never more than comes in
     assert np.all(np.diff(ts, axis=0) <= 1e-12)
@@ -38,19 +40,20 @@ def test_slab_limits(name):
 
 def test_slab_without_absorption_conserves_energy():
     # the closed-form image sums' σ → 0 limit: no loss, R + T = 1 at every thickness
-    p = DipoleParams.from_coefficients(np.array([1.0, 2.0, 4.0]), np.zeros(3), 1.4)
+    m = Material("white", (1.0, 2.0, 4.0), (0.0, 0.0, 0.0), 1.4, "dipole")
     for d in (0.05, 0.3, 1.0, 10.0, 1e3):
-        r, t = slab_totals(p, d)
+        r, t = slab_totals(m, d)
         np.testing.assert_allclose(r + t, 1.0, rtol=1e-9)
         assert np.all(t > 0)
 
 
 def test_slab_matches_the_truncated_image_series():
     # the closed form against the multipole's image sum, truncated far out (absorbing medium)
-    p = DipoleParams.from_material(preset("skin1"))
-    d = 1.7
-    z_b = 0.5 * (p.z_v - p.z_r)
-    z_s = np.minimum(p.z_r, d / 2)
+    m = preset("skin1", "dipole")
+    p = classical_dipole(m.sigma_s_prime, m.sigma_a, m.eta)
+    (z_r, z_v), d = p.depth, 1.7
+    z_b = 0.5 * (z_v - z_r)
+    z_s = np.minimum(z_r, d / 2)
     period = 2 * (d + 2 * z_b)
     i = np.arange(-4000, 4001)[:, None]
 
@@ -58,10 +61,10 @@ def test_slab_matches_the_truncated_image_series():
         a, b = real + i * period, virtual + i * period
         return (np.sign(a) * np.exp(-p.sigma_tr * np.abs(a)) - np.sign(b) * np.exp(-p.sigma_tr * np.abs(b))).sum(0)
 
-    w = -np.expm1(-d / p.z_r)
+    w = -np.expm1(-d / z_r)
     r = w * 0.5 * p.alpha_prime * pair(z_s, -z_s - 2 * z_b)
     t = (1 - w) + w * 0.5 * p.alpha_prime * pair(d - z_s, d + z_s + 2 * z_b)
-    got = slab_totals(p, d)
+    got = slab_totals(m, d)
     np.testing.assert_allclose(got[0], r, rtol=1e-10)
     np.testing.assert_allclose(got[1], t, rtol=1e-10)
 
@@ -74,11 +77,10 @@ def test_fallback_matches_physics():
     np.testing.assert_allclose(-np.log(fb.attenuation_color) / fb.attenuation_distance, m.sigma_tr * 10.0, rtol=1e-12)
     assert min(fb.attenuation_color) >= np.exp(-1) - 1e-12
     assert fb.ior == 1.5 and fb.thickness_factor == 3.0
-    p = DipoleParams.from_material(m)
-    rd = total_diffuse_reflectance(p.alpha_prime, p.eta)
+    rd = total_reflectance(profile_for(m))
     np.testing.assert_allclose(fb.base_color, rd)
     # (1 - t) R_d is the least-squares fit of the median slab's reflectance
-    r, t = slab_totals(p, 20.0)
+    r, t = slab_totals(m, 20.0)
     assert fb.transmission_factor == pytest.approx(1 - rd @ r / (rd @ rd), rel=1e-12)
     ts = np.linspace(0, 1, 2001)
     assert abs(ts[np.argmin([np.sum(((1 - x) * rd - r) ** 2) for x in ts])] - fb.transmission_factor) < 1e-3

@@ -10,7 +10,10 @@ techniques' ``bake``), not recorded from a run:
   (``scale_mm``) and its own ``<technique>_*`` options (kernels also the atlas and its padding),
   but not ``spectral_variant`` (an extra file made from the baked asset at export) nor
   ``lpv_vein_mm`` under the homogeneous ``lpv_field``;
-- screen, per material, reads the material and its ``screen_*`` options: no mesh, no scale.
+- screen, per material, reads the material and its ``screen_*`` options: no mesh, no scale;
+- the pilot (which measures each requested technique that has one, prt, screen and lpv, against
+  best-fit Lambert, one run each) reads the welded surface, the material, the scale, and that
+  technique's options as its bake reads them.
 """
 
 import os
@@ -41,7 +44,7 @@ def baseline(tmp_path_factory):
     blob(subdivisions=2).export(asset)
     (root / "out").mkdir()
     result = bake_asset(asset, BASE, root / "out" / "blob", StageCache(root / "cache"))
-    assert recomputed(result.report) == set(STAGE_VERSIONS) - {"pilot"}  # a cold cache runs every stage
+    assert recomputed(result.report) == set(STAGE_VERSIONS)  # a cold cache runs every stage
     return asset, root / "cache", root / "out"
 
 
@@ -52,23 +55,24 @@ def recomputed(report: dict) -> set[str]:
 
 
 @pytest.mark.parametrize("option, value, expected", [
-    ("scale_mm", 2.0, MESH_TECHNIQUES),  # thickness is in file units; screen bakes at 1 mm per unit
-    ("material", "skin1", MESH_TECHNIQUES | {"screen"}),
+    ("scale_mm", 2.0, MESH_TECHNIQUES | {"pilot"}),  # thickness is in file units; screen bakes at 1 mm per unit
+    ("material", "skin1", MESH_TECHNIQUES | {"screen", "pilot"}),
     ("atlas_resolution", 48, ATLAS_READERS),
     ("atlas_padding", 6, ATLAS_READERS),
     ("thickness_rays", 4, {"thickness", "thickness_map"}),
-    ("prt_directions", 24, {"prt"}),
-    ("prt_energy_dropped", 0.02, {"prt"}),
+    ("prt_directions", 24, {"prt", "pilot"}),
+    ("prt_energy_dropped", 0.02, {"prt", "pilot"}),
     ("kernels_size", 5, {"kernels"}),
     ("kernels_bits", 16, {"kernels"}),  # its tables are quantised in the stage
     ("spectral_eigenpairs", 20, {"spectral"}),
     ("spectral_basis", True, {"spectral"}),  # the spectrum's tables are made in the stage
     ("spectral_variant", True, set()),  # only an extra file, made from the baked asset at export
-    ("screen_samples", 12, {"screen"}),
-    ("lpv_resolution", 10, {"lpv"}),
-    ("lpv_field", "marble", {"lpv"}),
+    ("screen_samples", 12, {"screen", "pilot"}),
+    ("lpv_resolution", 10, {"lpv", "pilot"}),
+    ("lpv_field", "marble", {"lpv", "pilot"}),
     ("lpv_vein_mm", 12.0, set()),  # the veins are read only by the marble field, not by the homogeneous one
     ("techniques", ("prt", "kernels", "spectral", "screen"), set()),  # fewer techniques: the rest as they were
+    ("lambert_margin", 0.2, {"pilot"}),  # read by the pilot alone
     # a folder more the references may lie in: the same file read, the same scene, nothing after load changes
     ("allow_roots", (str(Path(__file__).parent),), {"load"}),
 ])

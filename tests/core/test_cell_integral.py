@@ -6,10 +6,10 @@ import pytest
 from fixtures import plane
 
 from sssbake.pipeline.core.cell_integral import Cumulative, apex_triangle, cell_integral, triangle_integral_in_plane
-from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile, disc_integral
+from sssbake.pipeline.core.profile import classical_dipole, diffuse_reflectance_profile, disc_integral, profile_for
 from sssbake.pipeline.core.materials import preset, preset_names
 
-P = DipoleParams.from_coefficients([1.0, 2.19, 0.3], [0.5, 0.0021, 0.01], 1.4)
+P = classical_dipole([1.0, 2.19, 0.3], [0.5, 0.0021, 0.01], 1.4)
 
 
 def grid_integral(point, a, b, c, n=1200):
@@ -36,7 +36,7 @@ def test_triangles_match_brute_force(seed):
 def test_cumulative_table_matches_closed_form():
     r = np.exp(np.random.default_rng(0).uniform(np.log(1e-9), np.log(1e7), 5000))
     for name in preset_names():
-        p = DipoleParams.from_material(preset(name))
+        p = profile_for(preset(name))
         np.testing.assert_allclose(Cumulative.build(p)(r), disc_integral(r, p), rtol=1e-5)
 
 

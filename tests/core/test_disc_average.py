@@ -4,12 +4,12 @@ against the exact mean, and the limits (a point, the disc's own centre)."""
 import numpy as np
 import pytest
 
-from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile, disc_integral
+from sssbake.pipeline.core.profile import classical_dipole, diffuse_reflectance_profile, disc_integral, profile_for
 from sssbake.pipeline.core.disc_average import DiscMean, disc_mean_exact
 from sssbake.pipeline.core.materials import preset
 
 # Strongly absorbing, marble-like and nearly non-absorbing channels in one material.
-P = DipoleParams.from_coefficients([1.0, 2.19, 0.3], [0.5, 0.0021, 0.01], 1.4)
+P = classical_dipole([1.0, 2.19, 0.3], [0.5, 0.0021, 0.01], 1.4)
 
 
 def grid_mean(d: float, a: float, h: float = 0.0, n: int = 900) -> np.ndarray:
@@ -65,9 +65,13 @@ def test_limits():
     assert np.all(np.abs(got / exact - 1) < 4e-3)
 
 
+@pytest.mark.parametrize("model, worst", [("montecarlo", 5e-3), ("dipole", 3e-3)])
 @pytest.mark.parametrize("name", ["marble", "skin1", "ketchup", "wholemilk"])
-def test_table_matches_exact_mean(name):
-    p = DipoleParams.from_material(preset(name))
+def test_table_matches_exact_mean(name, model, worst):
+    # The Monte Carlo profile's shallowest poles (~1/1000 of a mean free path) make ḡ step where
+    # the disc's edge crosses the receiver: those pairs take the exact mean (`EDGE_BAND`; 6 % off
+    # without); elsewhere its sharper shape costs the bilinear table up to 4e-3 (ketchup).
+    p = profile_for(preset(name, model))
     rng = np.random.default_rng(1)
     a = np.exp(rng.uniform(np.log(0.05), np.log(1.0), 4000))
     d = a * rng.uniform(0.0, 8.0, 4000)
@@ -78,13 +82,13 @@ def test_table_matches_exact_mean(name):
         got = got_all[:, c]
         assert np.all(np.isfinite(got)) and np.all(got > 0)
         assert np.median(np.abs(got / exact[:, c] - 1)) < 2e-4
-        assert np.abs(got / exact[:, c] - 1).max() < 3e-3  # worst where the edge passes the receiver
+        assert np.abs(got / exact[:, c] - 1).max() < worst
 
 
 def test_expansion_matches_its_derivative_form():
     # `_disc_expansion` sums e^(-P)/D³ polynomials; it must equal Rd + (a²/8)(Rd''(1 - c²) +
     # Rd'/r (1 + c²)) from `profile_derivatives`, Rd'/r -> Rd'' at r = 0, clipped at 0.
-    from sssbake.pipeline.core.dipole import profile_derivatives
+    from sssbake.pipeline.core.profile import profile_derivatives
     from sssbake.pipeline.core.disc_average import _disc_expansion
 
     rng = np.random.default_rng(5)

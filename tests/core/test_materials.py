@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from sssbake.pipeline.core.dipole import total_diffuse_reflectance
+from sssbake.pipeline.core.profile import total_for_albedo
 from sssbake.pipeline.core.materials import (
     Material,
     MaterialError,
@@ -49,9 +49,11 @@ def test_unknown_preset_names_the_choices():
         preset("granite")
 
 
-def test_from_albedo_mfp_inverts_closed_form():
-    m = from_albedo_mfp("wax", [0.8, 0.6, 0.3], [2.0, 1.0, 0.5], eta=1.4)
-    rd = total_diffuse_reflectance(m.albedo_prime, m.eta)
+@pytest.mark.parametrize("profile", ["montecarlo", "dipole"])
+def test_from_albedo_mfp_inverts_the_models_total(profile):
+    m = from_albedo_mfp("wax", [0.8, 0.6, 0.3], [2.0, 1.0, 0.5], eta=1.4, profile=profile)
+    assert m.profile == profile
+    rd = total_for_albedo(m.albedo_prime, m.eta, profile)
     np.testing.assert_allclose(rd, [0.8, 0.6, 0.3], rtol=1e-10)
     np.testing.assert_allclose(m.mean_free_path_mm, [2.0, 1.0, 0.5], rtol=1e-12)
     with pytest.raises(MaterialError, match="outside"):

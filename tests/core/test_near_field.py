@@ -4,12 +4,12 @@ integral of Rd over the plane; far sources fall back to the disc mean."""
 import numpy as np
 from scipy.spatial import Delaunay
 
-from sssbake.pipeline.core.dipole import DipoleParams, disc_integral
+from sssbake.pipeline.core.profile import classical_dipole, disc_integral
 from sssbake.pipeline.core.disc_average import disc_mean_exact
 from sssbake.pipeline.core.near_field import NearField
 
-P = DipoleParams.from_coefficients([1.0, 1.0, 1.0], [0.5, 0.3, 0.2], 1.4)  # z_r = 0.67, 0.77, 0.83 mm
-LOW = DipoleParams.from_coefficients([1.0, 1.0, 1.0], [0.01, 0.02, 0.03], 1.4)  # long range
+P = classical_dipole([1.0, 1.0, 1.0], [0.5, 0.3, 0.2], 1.4)  # z_r = 0.67, 0.77, 0.83 mm
+LOW = classical_dipole([1.0, 1.0, 1.0], [0.01, 0.02, 0.03], 1.4)  # long range
 
 
 def irregular_plane(spacing: float, half: float, seed: int = 0):

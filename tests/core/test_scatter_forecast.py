@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from sssbake.pipeline.core.dipole import DipoleParams
+from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.core.scatter_forecast import scatter_forecast
 from sssbake.pipeline.core.scatter_operator import ScatterOptions, scatter_operator, scatter_plan
 from sssbake.pipeline.core.surface import area_weighted_normals
 
-MARBLE = DipoleParams.from_material(preset("marble"))
+MARBLE = profile_for(preset("marble"))
 
 
 def blob(subdivisions: int, radius_mm: float = 30.0):

@@ -6,7 +6,7 @@ import pytest
 import trimesh
 from fixtures import plane
 
-from sssbake.pipeline.core.dipole import DipoleParams, radius_for_energy, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import classical_dipole, profile_for, profile_of, profile_total, radius_for_energy
 from sssbake.pipeline.core.materials import preset, preset_names
 from sssbake.pipeline.core.scatter_operator import ScatterOptions, scatter_operator
 from sssbake.pipeline.core.surface import area_weighted_normals, vertex_areas
@@ -31,28 +31,29 @@ def lit(normals: np.ndarray, k: int = 6, seed: int = 0) -> np.ndarray:
     return np.clip(normals @ (d / np.linalg.norm(d, axis=1, keepdims=True)).T, 0.0, None)
 
 
+@pytest.mark.parametrize("model", ["montecarlo", "dipole"])
 @pytest.mark.parametrize("hierarchy", [False, True])
 @pytest.mark.parametrize("spacing_zr, tol", [(0.5, 0.005), (1.0, 0.005), (2.0, 0.01), (4.0, 0.01)])
-def test_plane_under_uniform_light_gives_total_diffuse_reflectance(hierarchy, spacing_zr, tol):
+def test_plane_under_uniform_light_gives_total_diffuse_reflectance(hierarchy, spacing_zr, tol, model):
     # Cells integrated as they tile keep R_d on coarse tessellations too (point samples lost 5 %
     # at a spacing of z_r and 11 % at 2 z_r). A short-range material keeps the plane small.
-    p = DipoleParams.from_coefficients([1.0, 1.0, 1.0], [0.5, 0.3, 0.2], 1.4)
+    p = profile_of((1.0, 1.0, 1.0), (0.5, 0.3, 0.2), 1.4, model)
     options = ScatterOptions(energy_dropped=1e-2, hierarchy=hierarchy, float32=False)
-    spacing = spacing_zr * p.z_r.min()
+    spacing = spacing_zr / 1.5  # z_r = 1/σ'_t, the largest σ'_t 1.5/mm
     verts, faces, centre = plane(spacing, int(np.ceil(radius_for_energy(1e-2, p).max() / spacing)) + 2)
     op = scatter_operator(verts, faces, up(verts), p, options)
     q = op.apply(np.ones((len(verts), 1)))[:, centre, 0]
-    rd = total_diffuse_reflectance(p.alpha_prime, p.eta)
+    rd = profile_total(p)
     np.testing.assert_allclose(q, rd * (1.0 - op.dropped_fraction), rtol=tol)
     assert np.all(op.dropped_fraction <= 1e-2 + 1e-12)
 
 
 def test_coarse_sources_never_send_out_more_than_total_reflectance():
     # At 4 z_r overlapping source discs would return ~1 % more than R_d; the limit holds them at R_d.
-    p = DipoleParams.from_coefficients([1.0, 1.0, 1.0], [0.5, 0.3, 0.2], 1.4)
-    verts, faces, centre = plane(4.0 * p.z_r.min(), 12)
+    p = classical_dipole([1.0, 1.0, 1.0], [0.5, 0.3, 0.2], 1.4)
+    verts, faces, centre = plane(4.0 * p.depth[0].min(), 12)
     area = vertex_areas(verts, faces)
-    rd = total_diffuse_reflectance(p.alpha_prime, p.eta)
+    rd = profile_total(p)
     for options in (EXACT, ScatterOptions(float32=False)):
         op = scatter_operator(verts, faces, up(verts), p, options)
         impulse = np.zeros((len(verts), 1))
@@ -64,7 +65,7 @@ def test_coarse_sources_never_send_out_more_than_total_reflectance():
 @pytest.mark.parametrize("separation, rms, peak", [(1, 1e-2, 3e-2), (2, 3e-3, 8e-3)])
 def test_hierarchy_agrees_with_exact_pairs(separation, rms, peak):
     x, f, area, normals = sphere(25.0)  # marble: the radius spans a large part of the sphere
-    p = DipoleParams.from_material(preset("marble"))
+    p = profile_for(preset("marble"))
     signal = lit(normals)
     exact = scatter_operator(x, f, normals, p, EXACT).apply(signal)
     op = scatter_operator(x, f, normals, p, ScatterOptions(separation=separation))
@@ -79,9 +80,9 @@ def test_hierarchy_agrees_with_exact_pairs(separation, rms, peak):
 @pytest.mark.parametrize("name", preset_names())
 def test_never_gains_energy(name):
     x, f, area, normals = sphere(10.0, subdivisions=3)
-    p = DipoleParams.from_material(preset(name))
+    p = profile_for(preset(name))
     signal = lit(normals, k=3)
-    budget = total_diffuse_reflectance(p.alpha_prime, p.eta)[:, None] * (area @ signal)[None, :]
+    budget = profile_total(p)[:, None] * (area @ signal)[None, :]
     for options in (EXACT, ScatterOptions()):
         q = scatter_operator(x, f, normals, p, options).apply(signal)
         out = np.einsum("i,cik->ck", area, q)
@@ -91,7 +92,7 @@ def test_never_gains_energy(name):
 
 def test_rotation_invariance():
     x, f, area, normals = sphere(20.0, subdivisions=3)
-    p = DipoleParams.from_material(preset("ketchup"))
+    p = profile_for(preset("ketchup"))
     rot = trimesh.transformations.rotation_matrix(0.7, [0.3, -0.5, 0.8])[:3, :3]
     signal = lit(normals)
     for options in (EXACT, ScatterOptions()):
@@ -110,14 +111,14 @@ def test_rotation_invariance():
 ])
 def test_extremes_stay_finite(sigma_s, sigma_a, eta):
     x, f, area, normals = sphere(5.0, subdivisions=2)
-    p = DipoleParams.from_coefficients([sigma_s] * 3, [sigma_a] * 3, eta)
+    p = classical_dipole([sigma_s] * 3, [sigma_a] * 3, eta)
     for options in (EXACT, ScatterOptions()):
         q = scatter_operator(x, f, normals, p, options).apply(lit(normals, k=2))
         assert np.all(np.isfinite(q)) and np.all(q >= 0)
 
 
 def test_bad_input_is_refused():
-    p = DipoleParams.from_material(preset("marble"))
+    p = profile_for(preset("marble"))
     with pytest.raises(ValueError, match="scatter: need positions"):
         scatter_operator(np.zeros((3, 2)), np.array([[0, 1, 2]]), np.zeros((3, 2)), p)
     with pytest.raises(ValueError, match="finite"):
@@ -128,7 +129,7 @@ def test_bad_input_is_refused():
 
 def test_float32_and_threads_change_nothing_but_rounding():
     x, f, area, normals = sphere(25.0)
-    p = DipoleParams.from_material(preset("marble"))
+    p = profile_for(preset("marble"))
     signal = lit(normals, k=40)  # more signals than one block: blocks run on both threads
     ref = scatter_operator(x, f, normals, p, ScatterOptions(float32=False, threads=1)).apply(signal)
     single = scatter_operator(x, f, normals, p, ScatterOptions(float32=True, threads=2, block=7)).apply(signal)
@@ -147,10 +148,10 @@ def test_float32_and_threads_change_nothing_but_rounding():
 
 def test_far_kernel_table_interpolates_to_its_bound():
     # The table's documented error (< 1e-5 relative) at points between its nodes.
-    from sssbake.pipeline.core.dipole import profile_derivatives
+    from sssbake.pipeline.core.profile import profile_derivatives
     from sssbake.pipeline.core.scatter_operator import _KernelTable
     for name in ("marble", "ketchup", "skin1"):
-        p = DipoleParams.from_material(preset(name))
+        p = profile_for(preset(name))
         radius = radius_for_energy(1e-2, p)
         table = _KernelTable.build(p, 0.3, float(radius.max()))
         at = np.linspace(0.0, table.nodes - 2, 5001)[1:-1] + 0.37
@@ -170,7 +171,7 @@ def test_chunked_assembly_gives_the_same_matrices(monkeypatch):
     from sssbake.pipeline.core import scatter_operator as module
 
     x, f, _, normals = sphere(25.0)
-    p = DipoleParams.from_material(preset("marble"))
+    p = profile_for(preset("marble"))
     options = ScatterOptions(threads=2)
     monkeypatch.setattr(module, "ENTRIES_PER_CHUNK", 10**9)
     whole = scatter_operator(x, f, normals, p, options)

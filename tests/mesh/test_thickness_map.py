@@ -52,3 +52,17 @@ def test_texture_is_whole_blocks_and_matches_vertex_thickness(resolution):
     # texels sample the surface at their centres, not at the faces': faces next to a chart's border
     # read gutter copies, up to 6 % off at 128 texels (3 % at 250); most agree to rounding
     assert np.median(error) < 0.002 and error.max() < 0.08, np.quantile(error, [0.5, 0.99, 1.0])
+
+
+def test_a_textured_cube_reads_its_edge_at_every_texel():
+    # render vertices split at every edge (each triangle its own three), so are the normals: every
+    # texel casts along its face's normal
+    box = trimesh.creation.box(extents=(100.0, 100.0, 100.0))
+    positions = np.asarray(box.vertices, dtype=np.float64)[np.asarray(box.faces)].reshape(-1, 3)
+    faces = np.arange(len(positions), dtype=np.int64).reshape(-1, 3)
+    normals = np.repeat(np.asarray(box.face_normals, dtype=np.float64), 3, axis=0)
+    atlas = compute_atlas([(positions, faces)], resolution=64, padding=2)
+    surface = weld_surface([Primitive(positions, faces, normals=normals)], 1e-9)
+    tmap = bake_thickness_map(atlas, [(positions, normals)], surface, cap=1000.0, rays=1, padding=2)
+    assert tmap.mask.sum() > 1000 and tmap.escaped == 0
+    np.testing.assert_allclose(tmap.image[tmap.mask], 100.0, rtol=1e-9)

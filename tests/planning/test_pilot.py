@@ -1,5 +1,6 @@
 """The planner's pilot: candidates cheapest first, a subsample that keeps the shape, and the first
-candidate within the budget chosen from what the pilot measured against the reference."""
+candidate within the budget that beats best-fit Lambert chosen from what the pilot measured against
+the reference."""
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.mesh.clean import clean_scene
 from sssbake.pipeline.mesh.load import load_scene
 from sssbake.pipeline.options import BAKE_DEFAULTS
-from sssbake.pipeline.planning.pilot import candidates, pilot_surface, run_pilot
+from sssbake.pipeline.planning.pilot import beats_lambert, candidates, pilot_surface, run_pilot
 from sssbake.pipeline.techniques.lpv.verify import LPV_SELF_REFERENCE
 from sssbake.pipeline.techniques.prt.compress import budget_reference_count
 from sssbake.pipeline.techniques.prt.pilot import PRT_BUDGETS, PRT_DIRECTIONS
@@ -68,7 +69,7 @@ def test_the_pilot_takes_the_first_candidate_within_the_budget(tmp_path):
     loose = run_pilot(found, ball, 100.0, skin, options, 0.5, len(ball.positions))
     errors = [r["rmse_image"] for r in loose.rows]
     assert len(errors) == len(found) and all(0 < e < 0.5 for e in errors)
-    assert loose.chosen == 0 and loose.met and loose.reference == "dipole"
+    assert loose.chosen == 0 and loose.met and loose.reference == "montecarlo"
     # a budget between the candidates' errors: the first at or under it, whatever comes after
     budget = sorted(errors)[2]
     mid = run_pilot(found, ball, 100.0, skin, options, budget, len(ball.positions))
@@ -84,10 +85,12 @@ def test_a_veined_medium_is_measured_against_the_same_field_at_twice_the_resolut
     found = candidates("lpv", {"lpv_resolution": 16, "lpv_field": "marble"}, options, len(block.positions), False)[:3]
     loose = run_pilot(found, block, 100.0, preset("marble"), options, 0.5, len(block.positions))
     assert loose.reference == LPV_SELF_REFERENCE
-    assert loose.met and loose.chosen == 0 and len(loose.rows) == 1  # lpv stops at the first within
+    # lpv stops at the first within that beats best-fit Lambert: grids 16 and 24 are within 0.5 but do not
+    beaten = [r["beats_lambert"] for r in loose.rows]
+    assert loose.met and beaten == [False, False, True] and loose.chosen == 2
     tight = run_pilot(found, block, 100.0, preset("marble"), options, 1e-9, len(block.positions))
     errors = [r["rmse_image"] for r in tight.rows]
-    assert len(errors) == 3 and not tight.met and errors[0] == loose.rows[0]["rmse_image"]
+    assert len(errors) == 3 and not tight.met and errors == [r["rmse_image"] for r in loose.rows]
     assert errors[2] < errors[0]  # finer grids sit nearer their own 2x
 
 
@@ -106,3 +109,27 @@ def test_the_pilot_sees_the_mesh_where_its_node_puts_it(tmp_path):
     turn[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
     turned = run_pilot(found, ball, 100.0, preset("skin1"), options, 0.5, len(ball.positions), turn)
     np.testing.assert_allclose(turned.rows[0]["rmse_image"], at_origin.rows[0]["rmse_image"], rtol=0.15)
+
+
+def test_every_candidate_is_measured_against_best_fit_lambert(tmp_path):
+    """A veined block (its reference the same field at twice the grid, whatever the diffusion
+    profile): the coarse grids are clearly worse than best-fit Lambert, the finest is not. Without
+    a budget every candidate is measured; a margin no grid meets leaves none eligible."""
+    block = surface_of(tmp_path, trimesh.creation.box(extents=(1.0, 0.5, 0.5)))
+    options = BAKE_DEFAULTS.merged({"lpv_field": "marble", "lpv_vein_mm": 20.0})
+    found = candidates("lpv", {"lpv_resolution": 16, "lpv_field": "marble"}, options, len(block.positions), False)[:3]
+    pilot = run_pilot(found, block, 100.0, preset("marble"), options, None, len(block.positions))
+    rows = pilot.rows
+    assert len(rows) == 3 and pilot.met and pilot.chosen == 2  # no budget: all measured, the first eligible
+    assert rows[0]["rmse_object"] > 1.4 * rows[0]["lambert_rmse_object"]  # measured 0.211 against 0.118
+    assert [beats_lambert(r["rmse_object"], r["lambert_rmse_object"], options.lambert_margin) for r in rows] == \
+           [r["beats_lambert"] for r in rows] == [False, False, True]
+    for r in rows:  # object RMSE over the object's pixels exceeds the image's, diluted by the background
+        assert 0 < r["rmse_image"] < r["rmse_object"] < 1 and 0 < r["lambert_rmse_object"] < 1
+    # each grid has its own reference, so best-fit Lambert's figure differs from row to row
+    assert len({round(r["lambert_rmse_object"], 6) for r in rows}) == 3
+    strict = run_pilot(found, block, 100.0, preset("marble"), options.merged({"lambert_margin": 0.9}), None,
+                       len(block.positions))
+    assert not any(r["beats_lambert"] for r in strict.rows) and not strict.met
+    assert strict.chosen == int(np.argmin([r["rmse_image"] for r in strict.rows]))  # the least RMSE all the same
+    assert beats_lambert(0.05, 0.1, 0.4) and not beats_lambert(0.07, 0.1, 0.4) and not beats_lambert(0.1, 0.1, 0.0)

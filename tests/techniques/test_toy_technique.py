@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from sssbake.pipeline.core.dipole import DipoleParams, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import profile_for, profile_total
 from sssbake.pipeline.core.materials import preset
 
 TESTS = Path(__file__).resolve().parents[1]
@@ -34,8 +34,8 @@ def test_toy_technique_bakes_and_verifies(tmp_path):
     assert baked.returncode == 0, baked.stderr
     report = json.loads((tmp_path / "out" / "ball.report.json").read_text())
     (block,) = report["toy"].values()
-    params = DipoleParams.from_material(preset("marble"))
-    np.testing.assert_allclose(block["albedo"], 0.5 * total_diffuse_reflectance(params.alpha_prime, params.eta),
+    params = profile_for(preset("marble"))
+    np.testing.assert_allclose(block["albedo"], 0.5 * profile_total(params),
                                rtol=1e-12)
     assert report["stages"]["toy"]["runs"] == 1 and report["validation"]["gltf"]["errors"] == 0
 

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import DipoleParams, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import profile_for, profile_total
 from sssbake.pipeline.techniques.technique import BakeTarget, TechniqueBake
 from toy_technique.options import ToyOptions
 
 
 class ToyStage:
     def bake(self, target: BakeTarget, options: ToyOptions) -> TechniqueBake:
-        params = DipoleParams.from_material(target.material)
-        albedo = options.gain * np.asarray(total_diffuse_reflectance(params.alpha_prime, params.eta), dtype=np.float64)
+        params = profile_for(target.material)
+        albedo = options.gain * np.asarray(profile_total(params), dtype=np.float64)
         warnings = ("albedo over 1: the surface reflects more than it receives",) if albedo.max() > 1 else ()
         return TechniqueBake(None, {"albedo": albedo.tolist()}, {"albedo": albedo.tolist(), "bytes": {"perVertex": 0.0}},
                              warnings)

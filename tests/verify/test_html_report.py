@@ -1,12 +1,15 @@
 """The batch's HTML report: one self-contained page with every asset, its plan, each baked
 technique's figures and picture against the reference, failures in one line, and a Pareto plot;
-a headless Chromium renders it when one is installed."""
+techniques worse than best-fit Lambert marked and counted, as the batch summary does; a headless
+Chromium renders it when one is installed."""
 
 import base64
 import io
+import json
 import re
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,11 +22,11 @@ from sssbake.pipeline.cli import main
 @pytest.fixture(scope="module")
 def page(tmp_path_factory):
     src = tmp_path_factory.mktemp("html_in")
-    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(src / "ball.obj")  # 200 mm: screen
-    leaf = trimesh.creation.box(extents=(0.6, 0.6, 0.01))
+    trimesh.creation.icosphere(subdivisions=3, radius=1.0).export(src / "ball.obj")  # 200 mm: screen
+    leaf = trimesh.creation.box(extents=(0.6, 0.6, 0.03))
     for _ in range(4):  # 1538 vertices: enough that prt's tables and 12-byte attribute fit 48 bytes per vertex
         leaf = leaf.subdivide()
-    leaf.export(src / "leaf.obj")  # 1 mm thin: prt
+    leaf.export(src / "leaf.obj")  # 3 mm thin: prt (at 1 mm no prt candidate beat best-fit Lambert)
     (src / "broken.obj").write_text("v 0 0\n")
     out = tmp_path_factory.mktemp("html_out")
     assert main(["bake", str(src), "-o", str(out), "--scale-mm", "100", "--material", "skin1", "--techniques",
@@ -57,6 +60,54 @@ def test_the_page_holds_every_asset_its_plan_and_pictures(page):
     # the budget check: its attempts and what the whole of it took, per asset
     assert text.count("<h3>Budget check (") == 2 and text.count("with the pilot and the checks") == 2
     assert float(rows[1][1]) <= 48.0
+    # both beat best-fit Lambert, on the pilot (or they would not ship) and on the full asset
+    assert text.count("<td>better</td>") == 2 and "worse than best-fit Lambert" not in text
+
+
+def test_techniques_worse_than_best_fit_lambert_are_marked_and_counted(tmp_path, capsys):
+    """Techniques the user names are baked as asked, but measured on the pilot against best-fit
+    Lambert: the batch summary counts and names those worse, and the report marks them from the
+    full asset's figures, which on meshes within the pilot's subsample are the pilot's."""
+    src = tmp_path / "in"
+    src.mkdir()
+    trimesh.creation.box(extents=(3.0, 1.0, 1.0)).export(src / "block.obj")  # 300 x 100 x 100 mm, 8 vertices
+    trimesh.creation.icosphere(subdivisions=3, radius=1.0).export(src / "ball.obj")
+    config = tmp_path / "batch.toml"
+    config.write_text('[defaults]\nmaterial = "skin1"\nscale_mm = 100.0\n\n'
+                      '[[assets]]\nglob = "block.obj"\ntechniques = ["lpv", "screen"]\nlpv_field = "marble"\n\n'
+                      '[[assets]]\nglob = "ball.obj"\ntechniques = ["screen"]\n')
+    out = tmp_path / "out"
+    assert main(["bake", str(src), "-o", str(out), "--config", str(config), "--no-validate", "--report"]) == 0
+    printed = capsys.readouterr().out
+    block = json.loads((out / "block.report.json").read_text())
+    ball = json.loads((out / "ball.report.json").read_text())
+    assert block["lpv"] and block["screen"] and ball["screen"] and block["plan"] == []  # baked as asked
+    checks = {c["technique"]: c for c in block["lambert_checks"]}
+    (ball_check,) = ball["lambert_checks"]
+    # measured: on the 8-vertex block lpv 0.313 against 0.178 (its own reference: the field at twice the
+    # grid) and screen 0.158 against 0.0042; on the ball screen 0.0041 against 0.0151
+    assert checks["lpv"]["rmse_object"] > 1.3 * checks["lpv"]["lambert_rmse_object"]
+    assert checks["screen"]["rmse_object"] > 3 * checks["screen"]["lambert_rmse_object"]
+    assert ball_check["rmse_object"] < 0.5 * ball_check["lambert_rmse_object"] and ball_check["beats_lambert"]
+    assert all(c["shipped"] and c["label"] == f"{c['technique']} (requested)" for c in block["lambert_checks"])
+    # the summary: batch.json and the line at the end of the bake
+    summary = json.loads((out / "batch.json").read_text())
+    assert [(Path(m["asset"]).name, m["technique"]) for m in summary["worse_than_lambert"]] == [
+        ("block.obj", "lpv"), ("block.obj", "screen")]
+    named = "; ".join(f"block.obj block.obj/sssbake_default {t} {checks[t]['rmse_object']:.4f} against "
+                      f"{checks[t]['lambert_rmse_object']:.4f}" for t in ("lpv", "screen"))
+    assert f"2 techniques worse than best-fit Lambert (object RMSE on the pilot's subsample): {named}\n" in printed
+    # the report: the full asset's figures, the pilot's where the mesh is the pilot's subsample
+    text = (out / "report.html").read_text()
+    rows = re.findall(r"<tr><td>(screen|lpv)</td><td>[0-9.]+</td><td>[0-9.]+</td><td>([0-9.]+)</td><td>([0-9.]+)</td>"
+                      r"(<td class='worse'>worse</td>|<td>better</td>)", text)
+    worse = "<td class='worse'>worse</td>"
+    assert [(t, mark) for t, _, _, mark in rows] == [("screen", "<td>better</td>"), ("screen", worse), ("lpv", worse)]
+    for (t, rmse_object, lambert, _), check in zip(rows, (ball_check, checks["screen"], checks["lpv"])):
+        np.testing.assert_allclose([float(rmse_object), float(lambert)],
+                                   [check["rmse_object"], check["lambert_rmse_object"]], rtol=2e-3, atol=1e-4)
+    assert "2 techniques worse than best-fit Lambert (object RMSE at 160² on the full asset): block.obj screen " \
+        in text
 
 
 @pytest.mark.skipif(not any(shutil.which(b) for b in ("chromium", "chromium-browser", "google-chrome")),

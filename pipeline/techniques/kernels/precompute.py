@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sssbake.pipeline.core.dipole import DipoleParams, disc_integral
+from sssbake.pipeline.core.profile import Profile, disc_integral, profile_for
 from sssbake.pipeline.core.integer_keys import argsort_keys, unique_keys
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.profile_table import ProfileTable
@@ -161,7 +161,7 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     options.check()
     seconds = {}
     t = time.perf_counter()
-    params = DipoleParams.from_material(material)
+    params = profile_for(material)
     width, height = atlas.width, atlas.height
     k, r = options.kernel_size, (options.kernel_size - 1) // 2
     parts = [(part.uvs, part.faces, pos[part.vmapping], nrm[part.vmapping]) for part, (pos, nrm) in zip(atlas.parts, primitives)]
@@ -330,7 +330,7 @@ class _Context:
     f_keys: np.ndarray      # (nnz,) row · n + column, increasing (int32 when n² fits)
     vertex_count: int
     local: ProfileTable     # finer table for texel pairs
-    params: DipoleParams
+    params: Profile
 
     def transport(self, receiver: np.ndarray, source: np.ndarray) -> np.ndarray:
         """(m, 3) T(receiver, source) between texels."""

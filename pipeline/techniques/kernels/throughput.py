@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import Profile, diffuse_reflectance_profile, profile_total
 from sssbake.pipeline.core.integer_keys import argsort_keys
 from sssbake.pipeline.core.near_field import NearField
 from sssbake.pipeline.core.profile_table import ProfileTable
@@ -110,7 +110,7 @@ def throughput_values(field: NearField, table: ProfileTable, threshold: float, s
     return value
 
 
-def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: DipoleParams,
+def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: Profile,
                       threshold: float, diagonal: bool = False, max_entries: int = MAX_ENTRIES) -> Throughput:
     """All entries of F at or above `threshold` (see the module docstring).
 
@@ -120,7 +120,7 @@ def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.n
     faces : (m, 3) int64
     normals : (n, 3) float64
         Unit vertex normals.
-    params : DipoleParams
+    params : Profile
     threshold : float
         Entries whose largest channel is below it are dropped.
     diagonal : bool
@@ -174,7 +174,7 @@ def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.n
     values = np.concatenate(values) if n else np.zeros((0, 3), np.float32)
     indices = np.concatenate(indices) if n else np.zeros(0, np.int64)
     sent = np.sum(sent, axis=0) if n else np.zeros(3)
-    total = total_diffuse_reflectance(params.alpha_prime, params.eta) * max(float(cell.sum()), 1e-300)
+    total = profile_total(params) * max(float(cell.sum()), 1e-300)
     return Throughput(indptr, indices, values, sent / total, radius, field, table)
 
 
@@ -231,7 +231,7 @@ def _estimated_entries(x: np.ndarray, trees: list, field: NearField, table: Prof
     return float((value.max(axis=1) > 0).sum()) * n / max(len(picked), 1)
 
 
-def search_radius(largest_cell_mm2: float, params: DipoleParams, threshold: float) -> float:
+def search_radius(largest_cell_mm2: float, params: Profile, threshold: float) -> float:
     """Distance (mm) beyond which no source of cell area <= `largest_cell_mm2` reaches `threshold`
     in any channel (bisection on the monotone profile)."""
     if largest_cell_mm2 * diffuse_reflectance_profile(0.0, params).max() < threshold:

@@ -1,11 +1,11 @@
-"""The lpv rendering's scale: what turns the paper's area-light estimate into the dipole's radiance.
+"""The lpv rendering's scale: what turns the paper's area-light estimate into the profile's radiance.
 
 The paper's L_i = (2/A)(√(1/4π) c00 + ½ √(3/4π) c10^(n)) reads the accumulation grid, the sum of
 the intensity a boundary cell holds over all steps; its absolute level depends on the cell size
 and the step count (the paper scales its Figure 8 by hand, by 3, 2 and 1.2). Here the level is
 set once per grid and step count: a slab of the grid's mean medium, infinite in x and y (a 1 × 1
-periodic column), lit at normal incidence by unit irradiance, must give the dipole's radiance
-R_d F_t(η, 1) / π at its surface. Without the scale the radiance is several times too bright,
+periodic column), lit at normal incidence by unit irradiance, must give the diffusion profile's radiance
+R_d F_t(η, 1) / π at its surface (R_d the profile's own total, `profile.profile_total`). Without the scale the radiance is several times too bright,
 growing with resolution and steps (benchmarks/README.md#lpv-calibration).
 """
 
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import total_diffuse_reflectance
+from sssbake.pipeline.core.profile import profile_of, profile_total
 from sssbake.pipeline.core.fresnel import fresnel_transmittance
 from sssbake.pipeline.techniques.lpv.data import LpvGrid
 from sssbake.pipeline.techniques.lpv.inject import LOBE
@@ -21,7 +21,7 @@ from sssbake.pipeline.techniques.lpv.matrices import lpv_basis
 from sssbake.pipeline.techniques.lpv.propagate import propagation_steps, radiance
 
 
-def render_scales(grid: LpvGrid, max_steps: int) -> np.ndarray:
+def render_scales(grid: LpvGrid, max_steps: int, profile: str) -> np.ndarray:
     """The rendering's scale per colour channel for 1 .. `max_steps` propagation steps.
 
     Parameters
@@ -30,6 +30,8 @@ def render_scales(grid: LpvGrid, max_steps: int) -> np.ndarray:
         At least one cell with medium; its occupancy-weighted mean medium makes the slab.
     max_steps : int
         >= 1.
+    profile : str
+        The diffusion profile model whose slab radiance the scale matches (`materials.PROFILE_MODELS`).
 
     Returns
     -------
@@ -58,7 +60,8 @@ def render_scales(grid: LpvGrid, max_steps: int) -> np.ndarray:
     injected[depth - 1, 0, 0] = transmitted * LOBE[[0, 1, 1, 1]] * lpv_basis(np.array([[0.0, 0.0, -1.0]]))[0]
     surface = np.array([[0.5 * grid.cell, 0.5 * grid.cell, depth * grid.cell]])
     up = np.array([[0.0, 0.0, 1.0]])
-    want = total_diffuse_reflectance(mean["albedo"], grid.eta) * fresnel_transmittance(grid.eta, 1.0) / np.pi
+    want = profile_total(profile_of(tuple(mean["albedo"]), tuple(1.0 - mean["albedo"]), grid.eta, profile))
+    want = want * fresnel_transmittance(grid.eta, 1.0) / np.pi
     # The injected lobe about -z renders nothing along +z (Φ/4π - Φ/4π), so only the propagated
     # light is summed: the lobe's rounding (1e-16 Φ) would swamp it where a step keeps ~1e-34.
     accumulated = np.zeros_like(injected)

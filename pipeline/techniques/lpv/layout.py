@@ -168,21 +168,17 @@ def lpv_source_from_tables(tables: dict) -> LpvSource | None:
     if record is None:
         return None
 
-    def material(data: dict) -> Material:
-        return Material(str(data["name"]), tuple(float(v) for v in data["sigma_s_prime"]),
-                        tuple(float(v) for v in data["sigma_a"]), float(data["eta"]))
-
     try:
         field = str(tables["field"])
         grid = LpvGridOptions(**{k: int(record["grid"][k]) for k in ("resolution", "padding", "supersample")})
-        body = material(record["material"])
+        body = Material.from_json(record["material"])
         marble = None
         if field == "marble":
             m = record["marble"]
             marble = MarbleOptions(vein_mm=float(m["veinMm"]), turbulence=float(m["turbulence"]),
                                    octaves=int(m["octaves"]), sharpness=float(m["sharpness"]),
                                    axis=tuple(float(v) for v in m["axis"]), seed=int(m["seed"]), base=body,
-                                   vein_material=material(m["vein"]))
+                                   vein_material=Material.from_json(m["vein"]))
         elif field != "homogeneous":
             raise ValueError(f"unknown field {field!r}")
         source = LpvSource(field, float(record["mmPerUnit"]), grid, body, marble)

@@ -91,9 +91,9 @@ def materials(options: MarbleOptions = MARBLE_DEFAULTS) -> tuple[Material, Mater
     base = preset(options.base) if isinstance(options.base, str) else options.base
     vein = options.vein_material
     if vein is None:
-        vein = Material(f"{base.name} vein", base.sigma_s_prime, tuple(VEIN_ABSORPTION * base.a), base.eta)
+        vein = Material(f"{base.name} vein", base.sigma_s_prime, tuple(VEIN_ABSORPTION * base.a), base.eta, base.profile)
     elif isinstance(vein, str):
-        vein = preset(vein)
+        vein = preset(vein, base.profile)
     return base, vein
 
 

@@ -32,7 +32,7 @@ def bake_lpv(surface: Surface, mm_per_unit: float, material: Material, grid_opti
     Parameters
     ----------
     surface : Surface
-        The mesh's welded surface (closed).
+        The mesh's welded surface (open or folded ones too: `lpv_grid.voxelise`).
     mm_per_unit : float
     material : Material
         The mesh's material: the whole medium (``"homogeneous"``) or the marble's body
@@ -54,7 +54,7 @@ def bake_lpv(surface: Surface, mm_per_unit: float, material: Material, grid_opti
     grid = voxelise(surface, mm_per_unit, source, material.eta, grid_options)
     seconds["voxelise"] = time.perf_counter() - t
     t = time.perf_counter()
-    scales = render_scales(grid, max_steps)
+    scales = render_scales(grid, max_steps, material.profile)
     seconds["calibrate"] = time.perf_counter() - t
     # the field's parameters travel with the grid: a reader can rebuild it (verify's reference)
     tables = lpv_tables(grid, propagation_matrices(), scales, field,

@@ -72,7 +72,7 @@ def lpv_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
         ``rows`` (``sweep`` ("grid"), ``resolution``, ``shape``, ``cell_mm``, ``steps``, ``bytes`` (the mesh's
         tables), ``bytes_per_vertex`` (0), ``seconds`` (voxelising and calibrating), ``frame_ms``,
         ``rmse_image`` (worst over the lights), ``rmse_image_per_light``, ``rmse_object``),
-        ``reference`` (``"dipole"`` or the finest configuration), ``field``, ``frame_ms_sss`` (the
+        ``reference`` (the profile model, e.g. ``"montecarlo"``, or the finest configuration), ``field``, ``frame_ms_sss`` (the
         finest configuration), ``frame_ms_plain``, ``frame_ratio``, ``asset``, ``vertices``,
         ``material``, ``mm_per_unit``, ``lights``, ``image_size``, ``outputs``.
     """
@@ -94,7 +94,7 @@ def lpv_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     for res in sorted(resolutions):
         t = time.perf_counter()
         voxels = voxelise(surface, mm_per_unit, source, material.eta, replace(grid, resolution=res))
-        scales = render_scales(voxels, max_steps)
+        scales = render_scales(voxels, max_steps, material.profile)
         seconds = time.perf_counter() - t
         stored = lpv_bytes(lpv_tables(voxels, propagation_matrices(), scales, field))["total"]
         configs += [(res, voxels, scales, seconds, stored, s) for s in sorted(steps)]
@@ -111,7 +111,7 @@ def lpv_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     if field == "homogeneous":
         _, reference = reference_lights(surface, mm_per_unit, material, lights, seed)
         drawn = lit_images(renderer, camera, base, rng_lights, reference)
-        label = "dipole"
+        label = material.profile
     else:
         res, voxels, scales, _, _, s = configs[-1]
         drawn = draw(item_of(voxels, scales, s))

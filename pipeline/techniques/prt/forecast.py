@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import DipoleParams
+from sssbake.pipeline.core.profile import Profile
 from sssbake.pipeline.core.scatter_forecast import ScatterForecast, scatter_forecast
 from sssbake.pipeline.core.scatter_operator import ScatterPlan, scatter_plan
 from sssbake.pipeline.techniques.technique import Budget
@@ -75,7 +75,7 @@ def _with_directions(f: ScatterForecast, plan: ScatterPlan, directions: int) -> 
 
 
 def check_budget(forecast: PrtForecast, budget: Budget | None, plan: ScatterPlan, positions_mm: np.ndarray,
-                 faces: np.ndarray, normals: np.ndarray, params: DipoleParams) -> None:
+                 faces: np.ndarray, normals: np.ndarray, params: Profile) -> None:
     """Raise ValueError (one line: the forecast, the limit, the knobs that would fit) when
     `forecast` (of `plan`'s gather, planned from `positions_mm`, `faces`, `normals` and `params`)
     is over `budget`."""

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import DipoleParams
+from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.core.freed_memory import release_freed_memory
 from sssbake.pipeline.core.fresnel import fresnel_transmittance
 from sssbake.pipeline.core.materials import Material
@@ -99,7 +99,7 @@ def precompute_prt(surface: Surface, mm_per_unit: float, material: Material, dir
     t = time.perf_counter()
     visible = direction_visibility(surface.positions, surface.faces, surface.normals, directions)
     seconds["visibility"] = time.perf_counter() - t
-    params = DipoleParams.from_material(material)
+    params = profile_for(material)
     t = time.perf_counter()
     if operator is None:
         operator = scatter_operator(surface.positions * mm_per_unit, surface.faces, surface.normals, params,

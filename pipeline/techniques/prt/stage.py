@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import DipoleParams
+from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.core.directions import direction_set
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.scatter_operator import scatter_plan
@@ -47,7 +47,7 @@ def bake_prt(surface: Surface, mm_per_unit: float, material: Material, direction
     t = time.perf_counter()
     ds = direction_set(directions)
     scatter = replace(PRT_PRECOMPUTE_DEFAULTS.scatter, energy_dropped=energy_dropped)
-    x, params = surface.positions * mm_per_unit, DipoleParams.from_material(material)
+    x, params = surface.positions * mm_per_unit, profile_for(material)
     plan = scatter_plan(x, surface.faces, surface.normals, params, scatter)
     t_forecast = time.perf_counter()
     forecast = prt_forecast(plan, directions)

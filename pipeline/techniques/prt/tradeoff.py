@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import DipoleParams
+from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.core.directions import direction_set, interpolation_weights
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.scatter_operator import SCATTER_DEFAULTS, scatter_operator
@@ -68,7 +68,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     surface = max(clean.surfaces, key=lambda s: len(s.positions))
     x_mm = surface.positions * mm_per_unit
     t = time.perf_counter()
-    operator = scatter_operator(x_mm, surface.faces, surface.normals, DipoleParams.from_material(material),
+    operator = scatter_operator(x_mm, surface.faces, surface.normals, profile_for(material),
                                 SCATTER_DEFAULTS)
     operator_seconds = time.perf_counter() - t
 

@@ -17,7 +17,10 @@ every channel.
 The Rd table holds Rd at r = r_max t², t evenly spaced (denser where Rd is steep), r_max where the
 furthest channel's R_d is `TABLE_REACH` complete; its size is the smallest power of two whose
 linear interpolation stays within `ScreenSamplesOptions.table_error` of the value (relative, measured at
-every midpoint, where Rd is at least 1e-6 of its peak).
+every midpoint where Rd is at least 1e-6 of its peak, beyond the radius holding `TABLE_INNER` of the
+channel's R_d: the Monte Carlo profile's peak at r = 0, light scattered a few times within ~1/100 of
+a mean free path, holds little light and no pixel resolves it, while it would hold the table to
+resolution it never uses; the energy check covers it).
 """
 
 from __future__ import annotations
@@ -26,13 +29,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import (
-    DipoleParams,
+from sssbake.pipeline.core.profile import (
+    Profile,
     diffuse_reflectance_profile,
+    profile_for,
+    profile_total,
     radius_holding,
-    total_diffuse_reflectance,
 )
-from sssbake.pipeline.core.dipole_sampling import sample_radii
+from sssbake.pipeline.core.profile_sampling import sample_radii
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.techniques.screen.data import ScreenSamples, table_integral
 
@@ -42,6 +46,8 @@ UNIFORM_SHARE = 0.5
 TABLE_REACH = 1.0 - 1e-4
 #: A table must hold every channel's R_d to within this share (its integral, `table_integral`).
 TABLE_ENERGY = 0.02
+#: Share of each channel's R_d within which the table's pointwise error is not measured.
+TABLE_INNER = 0.01
 #: Table sizes tried (powers of two).
 TABLE_SIZES = tuple(2**k for k in range(6, 15))
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
@@ -81,7 +87,7 @@ SCREEN_DEFAULTS = ScreenSamplesOptions()
 def screen_samples(material: Material, options: ScreenSamplesOptions = SCREEN_DEFAULTS) -> ScreenSamples:
     """The sample tables of one material (module docstring)."""
     options.check()
-    params = DipoleParams.from_material(material)
+    params = profile_for(material)
     spread = radius_holding(params, 0.5)
     driver = int(np.argmax(spread))
     rng = np.random.default_rng(options.seed)
@@ -97,7 +103,7 @@ def screen_samples(material: Material, options: ScreenSamplesOptions = SCREEN_DE
     angle = rng.random() * 2.0 * np.pi + GOLDEN_ANGLE * np.arange(len(r))
     offsets = np.column_stack([r * np.cos(angle), r * np.sin(angle)])
     # balance heuristic over the four sets: w = 1 / Σ_sets count · density
-    total = total_diffuse_reflectance(params.alpha_prime, params.eta)
+    total = profile_total(params)
     density = diffuse_reflectance_profile(r, params) / np.maximum(total, 1e-300)  # per unit area, per channel
     p_uni = np.where(r <= uniform_radius, 1.0 / (np.pi * uniform_radius**2), 0.0)
     weights = 1.0 / (density @ counts + u * p_uni)
@@ -106,18 +112,19 @@ def screen_samples(material: Material, options: ScreenSamplesOptions = SCREEN_DE
     return ScreenSamples(offsets, weights, driver, uniform_radius, table, reach, error)
 
 
-def _table(params: DipoleParams, reach: float, bound: float) -> tuple[np.ndarray, float]:
+def _table(params: Profile, reach: float, bound: float) -> tuple[np.ndarray, float]:
     """The smallest table of `TABLE_SIZES` within `bound` that also holds each channel's R_d
     within `TABLE_ENERGY`, and its measured error (a channel far narrower than the table's reach
     can hide inside its first interval, where the pointwise test sees nothing relevant)."""
-    total = total_diffuse_reflectance(params.alpha_prime, params.eta)
+    total = profile_total(params)
+    inner = radius_holding(params, TABLE_INNER)
     for size in TABLE_SIZES:
         t = np.linspace(0.0, 1.0, size)
         values = diffuse_reflectance_profile(reach * t * t, params).T
         mid = 0.5 * (t[1:] + t[:-1])
         exact = diffuse_reflectance_profile(reach * mid * mid, params).T
         linear = 0.5 * (values[:, 1:] + values[:, :-1])
-        relevant = (exact >= 1e-6 * values[:, :1]) & (exact > 0)
+        relevant = (exact >= 1e-6 * values[:, :1]) & (exact > 0) & (reach * mid * mid >= inner[:, None])
         error = float(np.max(np.abs(linear - exact)[relevant] / exact[relevant], initial=0.0))
         held = np.abs(table_integral(values, reach) - total) <= TABLE_ENERGY * total
         if error <= bound and np.all(held):

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sssbake.pipeline.core.dipole import DipoleParams, radius_holding, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import Profile, profile_for, profile_total, radius_holding
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.techniques.spectral.laplacian import cotangent_laplacian
@@ -91,7 +91,7 @@ def precompute_spectral(surface: Surface, mm_per_unit: float, material: Material
     """
     options.check()
     seconds = {}
-    params = DipoleParams.from_material(material)
+    params = profile_for(material)
     # a 2-D Gaussian of standard deviation s holds half its mass within s sqrt(2 ln 2)
     width = float(options.width_mm if options.width_mm is not None
                   else channel_weights(params) @ radius_holding(params, 0.5) / np.sqrt(2.0 * np.log(2.0)))
@@ -119,7 +119,7 @@ def precompute_spectral(surface: Surface, mm_per_unit: float, material: Material
 
 def naive_parameters(material: Material) -> tuple[float, float]:
     """The naive normals' σ_tr (1/mm) and neighbourhood radius (mm) from the material (module docstring)."""
-    params = DipoleParams.from_material(material)
+    params = profile_for(material)
     share = channel_weights(params)
     return float(share @ params.sigma_tr), float(share @ radius_holding(params, NAIVE_ENERGY))
 
@@ -132,9 +132,9 @@ def nyquist_frequency(positions_mm: np.ndarray, faces: np.ndarray) -> float:
     return np.pi / mean if mean > 0 else float("inf")
 
 
-def channel_weights(params: DipoleParams) -> np.ndarray:
+def channel_weights(params: Profile) -> np.ndarray:
     """(3,) each channel's share of R_d (equal shares when R_d is 0 in every channel)."""
-    total = total_diffuse_reflectance(params.alpha_prime, params.eta)
+    total = profile_total(params)
     return total / total.sum() if total.sum() > 0 else np.full(3, 1.0 / 3.0)
 
 

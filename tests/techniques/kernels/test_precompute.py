@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 from kernels_planes import flat_surface, plane_atlas, split_atlas
 
-from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import diffuse_reflectance_profile, profile_for, profile_total
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.techniques.kernels.evaluate import local_response, texel_q, vertex_response
 from sssbake.pipeline.techniques.kernels.precompute import KernelsPrecomputeOptions, precompute_kernels
 
 SKIN = preset("skin1")
-P = DipoleParams.from_material(SKIN)
-RD = total_diffuse_reflectance(P.alpha_prime, P.eta)
+P = profile_for(SKIN)
+RD = profile_total(P)
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +54,9 @@ def test_uniform_light_on_a_plane_gives_rd(bakes):
         q = texel_q(pre.data, _image(pre, 1.0), pre.barycentric)
         centre = np.linalg.norm(pre.positions[:, :2], axis=1) < 6.0
         error[blend] = q[centre].mean(axis=0) / RD - 1.0
-    assert np.all(np.abs(error["optimised"]) < 0.015), error
+    # measured -1.5, -0.3, -0.4 % under the Monte Carlo profile (skin1's red holds more light near
+    # the receiver, within the texel's own disc integral)
+    assert np.all(np.abs(error["optimised"]) < 0.02), error
     assert np.abs(error["fixed"]).max() > 2 * np.abs(error["optimised"]).max(), error
     assert np.all(error["none"] > 0.1), error  # local + global simply added: well above R_d
 

@@ -44,7 +44,7 @@ def ball():
 
 def item_of(surface, grid, steps=6):
     return dict(positions=surface.positions, normals=surface.normals, faces=surface.faces, model=np.eye(4),
-                eta=grid.eta, lpv=grid, lpv_matrices=propagation_matrices(), lpv_scales=render_scales(grid, 16),
+                eta=grid.eta, lpv=grid, lpv_matrices=propagation_matrices(), lpv_scales=render_scales(grid, 16, "montecarlo"),
                 lpv_steps=steps, lpv_shadow_size=192)
 
 

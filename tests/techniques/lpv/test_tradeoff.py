@@ -33,7 +33,7 @@ def result(ball):
 def test_every_pair_is_measured(result):
     rows = result["rows"]
     assert [(r["resolution"], r["steps"]) for r in rows] == [(8, 2), (8, 6), (20, 2), (20, 6)]
-    assert result["reference"] == "dipole" and result["field"] == "homogeneous"
+    assert result["reference"] == "montecarlo" and result["field"] == "homogeneous"
     assert rows[0]["shape"] == [10, 10, 10] and rows[2]["shape"] == [22, 22, 22]
     assert rows[0]["bytes"] < rows[2]["bytes"] and all(r["bytes_per_vertex"] == 0.0 for r in rows)
     assert all(r["frame_ms"] > 0 and r["rmse_object"] >= r["rmse_image"] for r in rows)

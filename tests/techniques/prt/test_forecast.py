@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from sssbake.pipeline.core.dipole import DipoleParams
+from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.core.scatter_operator import scatter_plan
 from sssbake.pipeline.core.surface import Surface, area_weighted_normals, vertex_areas
@@ -25,7 +25,7 @@ def ball(subdivisions: int = 4, radius: float = 3.0) -> Surface:
 
 def test_forecast_holds_the_gather_and_q():
     s = ball()
-    plan = scatter_plan(s.positions * 10.0, s.faces, s.normals, DipoleParams.from_material(MARBLE))
+    plan = scatter_plan(s.positions * 10.0, s.faces, s.normals, profile_for(MARBLE))
     few, many = prt_forecast(plan, 50), prt_forecast(plan, 200)
     op = plan.build()
     q = 3 * len(s.positions) * 200 * 4  # float32 q
@@ -55,7 +55,7 @@ def test_over_budget_refuses_before_the_gather(budget, limit):
 
 def test_the_error_offers_the_knob_that_fits():
     s = ball()
-    x, params = s.positions * 10.0, DipoleParams.from_material(MARBLE)
+    x, params = s.positions * 10.0, profile_for(MARBLE)
     plan = scatter_plan(x, s.faces, s.normals, params)
     need = prt_forecast(plan, 200)
     fewer = prt_forecast(plan, 100)

@@ -7,7 +7,7 @@ import trimesh
 from fixtures import plane
 
 from sssbake.pipeline.core import visibility
-from sssbake.pipeline.core.dipole import DipoleParams, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import profile_for, profile_total
 from sssbake.pipeline.core.directions import fibonacci_sphere
 from sssbake.pipeline.core.fresnel import fresnel_transmittance
 from sssbake.pipeline.core.materials import Material, preset
@@ -33,12 +33,12 @@ def two_spheres() -> Surface:
 
 
 def test_plane_q_is_transmitted_total_diffuse_reflectance():
-    p = DipoleParams.from_material(SHORT)
-    spacing = 0.25 * p.z_r.min()
+    p = profile_for(SHORT)
+    spacing = 0.25 * SHORT.mean_free_path_mm.min()  # a quarter of z_r = 1/σ'_t
     verts, faces, centre = plane(spacing, 40)
     directions = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.0, -1.0]])
     res = precompute_prt(surface_of(verts, faces), 1.0, SHORT, directions)
-    rd = total_diffuse_reflectance(p.alpha_prime, p.eta) * (1.0 - res.dropped_fraction)
+    rd = profile_total(p) * (1.0 - res.dropped_fraction)
     for j, cos in enumerate((1.0, 0.8)):
         expected = fresnel_transmittance(SHORT.eta, cos) * cos / np.pi * rd
         np.testing.assert_allclose(res.q[:, centre, j], expected, rtol=0.01)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import profile_for, Profile, diffuse_reflectance_profile, profile_total
 from sssbake.pipeline.core.fresnel import fresnel_transmittance
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.render.renderer import Renderer, RenderLight, fit_camera
@@ -44,7 +44,7 @@ def top_camera(item):
     return fit_camera(world, view_dir=(0.0, 0.0, -1.0))
 
 
-def edge_profile(s: float, params: DipoleParams, total: np.ndarray) -> np.ndarray:
+def edge_profile(s: float, params: Profile, total: np.ndarray) -> np.ndarray:
     """(3,) B at signed distance `s` (mm) from the edge of a half-plane of unit E (s > 0: dark side):
     the lit part of the circle of radius r is 2 arccos(|s| / r) of it."""
     def dark(c, a):
@@ -57,8 +57,8 @@ def edge_profile(s: float, params: DipoleParams, total: np.ndarray) -> np.ndarra
 @pytest.mark.parametrize("dialect", DIALECTS)
 def test_gather_over_a_half_lit_plane_reproduces_the_edge_profile(renderers, dialect):
     renderer = renderers[dialect]
-    params = DipoleParams.from_material(SKIN)
-    total = total_diffuse_reflectance(params.alpha_prime, params.eta)
+    params = profile_for(SKIN)
+    total = profile_total(params)
     samples = screen_samples(SKIN, ScreenSamplesOptions(samples=768, uniform=32))
     # fill off: every sample lands on the plane, so this is the plain balance-heuristic estimate
     item = plane_item(samples, ScreenRuntimeOptions(fill=False, resolve=False))
@@ -84,8 +84,8 @@ def test_gather_over_a_half_lit_plane_reproduces_the_edge_profile(renderers, dia
 
 def test_uniform_light_on_a_plane_gives_total_diffuse_reflectance(renderers):
     renderer = renderers["glsl330"]
-    params = DipoleParams.from_material(SKIN)
-    total = total_diffuse_reflectance(params.alpha_prime, params.eta)
+    params = profile_for(SKIN)
+    total = profile_total(params)
     samples = screen_samples(SKIN)  # the defaults: N = 32, U = 8
     light = RenderLight(False, (0.0, 0.0, 1.0), 1.0)
     for fill, rtol in ((True, 1e-3), (False, 0.1)):
@@ -192,10 +192,10 @@ def test_resolve_averages_the_tile_window_without_crossing_discontinuities(rende
 def test_table_total_is_the_closed_form_reflectance():
     for name in ("skin1", "marble", "ketchup", "skimmilk"):
         material = preset(name)
-        params = DipoleParams.from_material(material)
+        params = profile_for(material)
         samples = screen_samples(material)
         # the table stops where 1 - 1e-4 of R_d is inside and interpolates within 1e-3
-        np.testing.assert_allclose(table_total(samples), total_diffuse_reflectance(params.alpha_prime, params.eta),
+        np.testing.assert_allclose(table_total(samples), profile_total(params),
                                    rtol=1.5e-3)
 
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import diffuse_reflectance_profile, profile_for, profile_total
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.techniques.screen.samples import ScreenSamplesOptions, screen_samples
 
@@ -9,18 +9,19 @@ from sssbake.pipeline.techniques.screen.samples import ScreenSamplesOptions, scr
 @pytest.mark.parametrize("name", ["skin1", "marble", "ketchup"])
 def test_the_gather_over_a_uniformly_lit_plane_tends_to_r_d(name):
     # Σ Rd_c(r_i) w_i estimates ∫ Rd_c dA = R_d per channel; over seeds its mean converges
-    p = DipoleParams.from_material(preset(name))
-    expected = total_diffuse_reflectance(p.alpha_prime, p.eta)
+    p = profile_for(preset(name))
+    expected = profile_total(p)
     estimates = []
-    for seed in range(40):
+    for seed in range(160):
         s = screen_samples(preset(name), ScreenSamplesOptions(samples=64, uniform=16, seed=seed))
         r = np.linalg.norm(s.offsets, axis=1)
         estimates.append(diffuse_reflectance_profile(r, p).T @ s.weights)
     estimates = np.array(estimates)
     assert np.allclose(estimates.mean(axis=0), expected, rtol=0.01)
     # a third of the importance samples per channel: every channel, however narrow, has little noise
-    # (ketchup's blue had 22 % with red's samples alone)
-    assert np.all(estimates.std(axis=0) / expected < 0.04)
+    # (ketchup's blue had 22 % with red's samples alone; the Monte Carlo profile's skin1 red, whose
+    # near-field peak and far tail the other channels' samples cover thinly, measured 5.0 %)
+    assert np.all(estimates.std(axis=0) / expected < 0.06)
 
 
 def test_sample_sets_and_weights():
@@ -32,7 +33,7 @@ def test_sample_sets_and_weights():
 
 @pytest.mark.parametrize("bound", [1e-2, 1e-3, 1e-4])
 def test_rd_table_meets_its_bound_checked_densely(bound):
-    p = DipoleParams.from_material(preset("marble"))
+    p = profile_for(preset("marble"))
     s = screen_samples(preset("marble"), ScreenSamplesOptions(table_error=bound))
     size = s.table.shape[1]
     t = np.linspace(0.0, 1.0, 20 * size)

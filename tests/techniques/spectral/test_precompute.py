@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from sssbake.pipeline.core.dipole import DipoleParams, disc_integral, radius_holding, total_diffuse_reflectance
+from sssbake.pipeline.core.profile import disc_integral, profile_for, profile_total, radius_holding
 from sssbake.pipeline.core.materials import Material, preset
 from sssbake.pipeline.mesh.clean import weld_surface
 from sssbake.pipeline.mesh.scene import Primitive
@@ -21,8 +21,8 @@ def _surface(mesh):
 
 @pytest.mark.parametrize("name", ["skin1", "marble"])
 def test_radius_holding_holds_the_asked_share_of_r_d(name):
-    p = DipoleParams.from_material(preset(name))
-    total = total_diffuse_reflectance(p.alpha_prime, p.eta)
+    p = profile_for(preset(name))
+    total = profile_total(p)
     for energy in (0.5, 0.95):
         r = radius_holding(p, energy)
         assert np.allclose(np.diagonal(disc_integral(r, p)), energy * total, rtol=1e-9)
@@ -31,14 +31,14 @@ def test_radius_holding_holds_the_asked_share_of_r_d(name):
 
 def test_no_absorption_still_gives_finite_lengths():
     clear = Material("clear", (1.0, 1.0, 1.0), (0.0, 0.0, 0.0), 1.3)
-    r = radius_holding(DipoleParams.from_material(clear), 0.95)
+    r = radius_holding(profile_for(clear), 0.95)
     assert np.all(np.isfinite(r)) and np.all(r > 0)
 
 
 def test_defaults_follow_the_material_and_scale():
     s = _surface(trimesh.creation.icosphere(subdivisions=3, radius=1.0))
     skin = precompute_spectral(s, 20.0, preset("skin1"), SpectralPrecomputeOptions(eigenpairs=40))
-    p = DipoleParams.from_material(preset("skin1"))
+    p = profile_for(preset("skin1"))
     assert skin.width_mm == pytest.approx(channel_weights(p) @ radius_holding(p, 0.5) / np.sqrt(2 * np.log(2)))
     assert np.allclose(np.linalg.norm(skin.normals, axis=1), 1.0)
     # a sphere's normals are an l = 1 harmonic: the filter keeps their direction

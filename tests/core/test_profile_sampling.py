@@ -3,8 +3,8 @@ import pytest
 from scipy import stats
 from scipy.integrate import quad
 
-from sssbake.pipeline.core.dipole import DipoleParams, diffuse_reflectance_profile
-from sssbake.pipeline.core.dipole_sampling import XI_MAX, radius_cdf, sample_radii, solve_u
+from sssbake.pipeline.core.profile import diffuse_reflectance_profile, profile_for
+from sssbake.pipeline.core.profile_sampling import XI_MAX, radius_cdf, sample_radii, solve_u
 from sssbake.pipeline.core.materials import preset
 
 
@@ -20,7 +20,7 @@ def test_newton_meets_its_tolerance_over_the_whole_range(sigma_z):
 
 
 def test_radius_cdf_is_the_profiles_share_of_r_d():
-    p = DipoleParams.from_material(preset("skin1"))
+    p = profile_for(preset("skin1"))
     for c in range(3):
         total = quad(lambda s: 2 * np.pi * s * diffuse_reflectance_profile(s, p)[c], 0, np.inf, limit=400)[0]
         for r in (0.1, 1.0, 5.0):
@@ -31,7 +31,7 @@ def test_radius_cdf_is_the_profiles_share_of_r_d():
 @pytest.mark.parametrize("name", ["skin1", "marble", "ketchup"])
 def test_samples_follow_rd_times_r(name):
     # Kolmogorov-Smirnov at 1e5 samples against the closed-form CDF
-    p = DipoleParams.from_material(preset(name))
+    p = profile_for(preset(name))
     rng = np.random.default_rng(7)
     for c in range(3):
         r = sample_radii(rng.random(100_000), p, c)
@@ -39,23 +39,30 @@ def test_samples_follow_rd_times_r(name):
 
 
 def test_bad_numbers_raise():
-    with pytest.raises(ValueError, match="dipole sampling"):
+    with pytest.raises(ValueError, match="profile sampling"):
         solve_u(np.array([1.0]), 1.0)
-    with pytest.raises(ValueError, match="dipole sampling"):
+    with pytest.raises(ValueError, match="profile sampling"):
         solve_u(np.array([0.5]), -1.0)
 
 
-def test_extreme_numbers_give_finite_radii_and_stratification_survives():
-    p = DipoleParams.from_material(preset("marble"))
+@pytest.mark.parametrize("model", ["montecarlo", "dipole"])
+def test_extreme_numbers_give_finite_radii_and_stratification_survives(model):
+    p = profile_for(preset("marble", model))
     r = sample_radii(np.array([0.0, 1e-300, 0.5, 1.0 - 1e-16]), p, 1)
-    assert r[0] == 0.0 and np.all(np.isfinite(r)) and radius_cdf(r[-1], p, 1) > 1.0 - 1e-11
-    # strata of ξ are strata of each term's own CDF, 1 - e^(-σz(u - 1)) / u
+    assert r[0] == 0.0 and np.all(np.isfinite(r))
+    # ξ → 1 is the far end of the last pole's own CDF (the dipole's last pole, the virtual source,
+    # holds the widest tail, so there it is the far end of the whole profile)
+    w, z, sigma = p.channel(1)
+    u = np.sqrt(r[-1] ** 2 + z[-1] ** 2) / z[-1]
+    assert 1.0 - np.exp(-sigma[-1] * z[-1] * (u - 1.0)) / u > 1.0 - 1e-11
+    # strata of ξ are strata of each pole's own CDF, 1 - e^(-σz(u - 1)) / u, within its slice of the
+    # poles' shares w e^(-σz) (Mertens' real and virtual source for the dipole)
     xi = (np.arange(200) + 0.5) / 200
     r = sample_radii(xi, p, 1)
-    sigma, z_r, z_v = p.sigma_tr[1], p.z_r[1], p.z_v[1]
-    p_real = np.exp(-sigma * z_r) / (np.exp(-sigma * z_r) + np.exp(-sigma * z_v))
-    real = xi < p_real
-    z = np.where(real, z_r, z_v)
-    u = np.sqrt(r * r + z * z) / z
-    term_cdf = 1.0 - np.exp(-sigma * z * (u - 1.0)) / u
-    assert np.allclose(term_cdf, np.where(real, xi / p_real, (xi - p_real) / (1.0 - p_real)), atol=1e-9)
+    w, z, sigma = p.channel(1)
+    share = w * np.exp(-sigma * z) / np.sum(w * np.exp(-sigma * z))
+    upper = np.cumsum(share)
+    k = np.searchsorted(upper, xi, side="right")
+    u = np.sqrt(r * r + z[k] ** 2) / z[k]
+    term_cdf = 1.0 - np.exp(-sigma[k] * z[k] * (u - 1.0)) / u
+    assert np.allclose(term_cdf, (xi - (upper[k] - share[k])) / share[k], atol=1e-9)
