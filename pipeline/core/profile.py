@@ -8,7 +8,7 @@ per colour channel. Each pole is a normalised radial density times e^(-σ_k z_k)
 its inverse CDF are closed forms, so sums, self terms, derivatives and importance sampling stay
 exact whatever the model.
 
-Two models (`MODELS`), chosen per material (`Material.profile`):
+Two models (`materials.PROFILE_MODELS`), chosen per material (`Material.profile`):
 
 - ``"montecarlo"`` (the default): R(r) of a semi-infinite medium behind a smooth dielectric
   boundary as measured by a random walk (`random_walk.py`), tabulated over albedo and η and fitted
@@ -34,8 +34,6 @@ import numpy as np
 
 from sssbake.pipeline.core.fresnel import fresnel_transmittance
 from sssbake.pipeline.core.materials import DEFAULT_PROFILE, PROFILE_MODELS, Material, MaterialError
-
-MODELS = PROFILE_MODELS
 
 
 def fresnel_diffuse_reflectance(eta) -> np.ndarray:
@@ -69,7 +67,7 @@ class Profile:
         w_k >= 0, z_k > 0 (mm), σ_k >= 0 (1/mm) of each pole and channel (unused poles weigh 0).
     eta : float
     model : str
-        One of `MODELS`.
+        One of `materials.PROFILE_MODELS`.
     alpha_prime, sigma_tr : (3,) float64
         The material's reduced albedo and diffusion decay sqrt(3 σ_a σ'_t) (1/mm): scales for the
         heuristics that size a neighbourhood, not part of the profile's values.
@@ -128,7 +126,7 @@ def profile_of(sigma_s_prime: tuple, sigma_a: tuple, eta: float, model: str) -> 
     if model == "dipole":
         return classical_dipole(sigma_s_prime, sigma_a, eta)
     if model != "montecarlo":
-        raise MaterialError(f"unknown profile model {model!r}; choose one of {', '.join(MODELS)}")
+        raise MaterialError(f"unknown profile model {model!r}; choose one of {', '.join(PROFILE_MODELS)}")
     from sssbake.pipeline.core.montecarlo_profile import fitted_poles
 
     s, a = np.asarray(sigma_s_prime), np.asarray(sigma_a)
@@ -230,10 +228,12 @@ def total_for_albedo(alpha_prime, eta: float, model: str = DEFAULT_PROFILE) -> n
     if model == "dipole":
         k = np.sqrt(3.0 * np.clip(1.0 - alpha, 0.0, None))
         return 0.5 * alpha * (1.0 + np.exp(-(4.0 / 3.0) * boundary_a(eta) * k)) * np.exp(-k)
-    out = np.empty(len(alpha))
-    for i, x in enumerate(alpha):  # σ'_t = 1: α' = σ'_s
-        out[i] = total_reflectance(profile_of((float(x),) * 3, (1.0 - float(x),) * 3, float(eta), model))[0]
-    return out
+    if model != "montecarlo":
+        raise MaterialError(f"unknown profile model {model!r}; choose one of {', '.join(PROFILE_MODELS)}")
+    from sssbake.pipeline.core.montecarlo_profile import table_point
+
+    # the table's T, which each fit reproduces exactly: no fit needed where only the total is asked
+    return np.array([table_point(float(x), float(eta))[0] for x in alpha])
 
 
 def radius_for_energy(fraction_dropped: float, p: Profile, r_max: float = 1e12) -> np.ndarray:
