@@ -172,14 +172,21 @@ def _volpath_line(file: str, r: dict) -> str:
         return f"{r[key]:.3g} ({r['rmse_relative_denoised'][key]:.3g})"
 
     truth = "from the cache" if r["truth_cached"] else f"rendered in {r['truth_seconds']:.0f} s"
+    labels = {"rmse_relative": r["technique"], "rmse_relative_lambert_fitted": "best-fit Lambert",
+              "rmse_relative_fallback": "fallback"}
+    readings = "; ".join(
+        f"per {'8x8 block' if name == 'block' else 'visible vertex'} (noise floor {m['noise_floor']:.3g}, "
+        f"beyond it): " + ", ".join(f"{label} {m['rmse_relative_denoised'][key]:.3g}" for key, label in labels.items()
+                                    if key in m["rmse_relative_denoised"])
+        for name, m in r["measures"].items())
     return (f"{file} ({r['technique']} vs Mitsuba {r['mitsuba']} volpath, cos^{r['lobe_exponent']} lobe around "
             f"{np.round(r['light_dir'], 3).tolist()}, {r['spp']} spp, noise floor {r['noise_floor']:.3g}): relative "
             f"RMSE (beyond the noise) {error('rmse_relative')}, best-fit scaled {error('rmse_relative_fitted')} "
             f"(truth = {np.round(r['technique_scale'], 3).tolist()} x {r['technique']}); plain Lambert of the "
             f"profile's total reflectance {error('rmse_relative_lambert')}, best-fit Lambert "
             f"{error('rmse_relative_lambert_fitted')}; mirror reflection subtracted from the truth "
-            f"({r['specular_share']:.1%} of its light); truth {truth}; images in {r['pngs']['comparison']} "
-            f"(volpath | {r['technique']} | Lambert | best-fit Lambert)")
+            f"({r['specular_share']:.1%} of its light); {readings}; truth {truth}; images in "
+            f"{r['pngs']['comparison']} (volpath | {r['technique']} | Lambert | best-fit Lambert)")
 
 
 def _tradeoff(args) -> int:
@@ -412,7 +419,8 @@ def _technique_arguments(parser) -> None:
 
 def _profile_argument(parser, default: str | None = None) -> None:
     parser.add_argument("--profile", choices=PROFILE_MODELS, default=default,
-                        help="diffusion profile: montecarlo matches a Monte Carlo random walk (docs/profile.md); "
+                        help="diffusion profile: montecarlo matches a Monte Carlo random walk (docs/profile.md), scaled in a bake by each "
+                             "closed mesh's escape gain (docs/fidelity.md); "
                              f"dipole is Jensen et al. 2001's, to reproduce the papers (default {BAKE_DEFAULTS.profile})")
 
 

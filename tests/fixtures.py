@@ -163,6 +163,15 @@ def bake_screen_sphere(folder: Path, **overrides):
     return bake_asset(folder / "ball.obj", options, folder / "ball", StageCache(None)), options
 
 
+def baked_material(result):
+    """The scattering material a bake's techniques used (its report's, with the mesh's escape gain),
+    for a `BakeResult` of one scattering material."""
+    from sssbake.pipeline.core.materials import Material
+
+    (record,) = [m["scattering"] for m in result.report["materials"].values() if m["scattering"]]
+    return Material.from_json(record)
+
+
 # A batch config's defaults that keep a bake cheap: the fallback only (techniques is given, since
 # its default is the planner's), small atlases.
 FAST_DEFAULTS = """\

@@ -41,6 +41,8 @@ def test_samples_bake_clean(baked_samples):
     assert blob["plan"] == [] and blob["stages"]["simplify"]["skipped"]  # the config names lpv
     slab = json.loads((out / "thin_slab.report.json").read_text())
     assert slab["materials"]["sssbake_default"]["scattering"]["name"] == "skin1"
+    # a closed 2 mm slab lets out far more of the light entering it than a half-space (escape_gain.py)
+    assert min(slab["materials"]["sssbake_default"]["scattering"]["escape_gain"]) > 1.2
     # the heterogeneous sample: veined marble, an lpv grid whose absorption varies
     (veined,) = json.loads((out / "blob.report.json").read_text())["lpv"].values()
     assert veined["field"] == "marble" and veined["cellsWithMedium"] > 0
@@ -194,7 +196,7 @@ def test_spectral_bake_writes_normals_variant_and_basis(baked_samples, tmp_path)
     from sssbake.exporters.gltf import read_accessor
     from sssbake.exporters.gltf_tables import load_sssbake_gltf, technique_tables
     from sssbake.exporters.gltf_validator import ValidatorUnavailable, find_validator
-    from sssbake.pipeline.core.materials import preset
+    from sssbake.pipeline.core.materials import Material
     from sssbake.pipeline.mesh.clean import clean_scene
     from sssbake.pipeline.mesh.load import load_scene
     from sssbake.pipeline.techniques.spectral.precompute import SpectralPrecomputeOptions, precompute_spectral
@@ -217,9 +219,11 @@ def test_spectral_bake_writes_normals_variant_and_basis(baked_samples, tmp_path)
     for name in validated:
         assert report["validation"][name]["errors"] == report["validation"][name].get("warnings", 0) == 0, name
 
-    # the sample config: marble at 1 mm per unit
+    # the sample config: marble at 1 mm per unit, with the sphere's escape gain (the report's material)
     surface = clean_scene(load_scene(str(src / "sphere.obj"))).surfaces[0]
-    pre = precompute_spectral(surface, 1.0, preset("marble"), SpectralPrecomputeOptions(eigenpairs=40))
+    (record,) = [m["scattering"] for m in report["materials"].values() if m["scattering"]]
+    assert min(record["escape_gain"]) > 1.0
+    pre = precompute_spectral(surface, 1.0, Material.from_json(record), SpectralPrecomputeOptions(eigenpairs=40))
     gltf = pygltflib.GLTF2.load(str(tmp_path / "sphere.glb"))
     attributes = gltf.meshes[0].primitives[0].attributes
     stored = read_accessor(gltf, attributes._SSS_NORMAL).astype(np.float64)  # float32 VEC3

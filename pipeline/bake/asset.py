@@ -28,6 +28,7 @@ from sssbake.pipeline.bake.cache import StageCache, stage_key
 from sssbake.pipeline.bake.fallback import make_fallback
 from sssbake.pipeline.bake.stages import (
     AtlasParams,
+    EscapeGainParams,
     LoadParams,
     PilotParams,
     StageRunner,
@@ -35,6 +36,7 @@ from sssbake.pipeline.bake.stages import (
     ThicknessMapParams,
     ThicknessParams,
     atlas_stage,
+    escape_gain_stage,
     load_stage,
     pilot_stage,
     technique_stage,
@@ -60,7 +62,7 @@ from sssbake.pipeline.techniques.registry import TECHNIQUES
 from sssbake.pipeline.techniques.technique import MATERIAL, MESH, Budget, TechniqueBake
 
 # Bump a stage's version when its output for the same input changes (a technique's: its `stage_version`).
-STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 2, "thickness_map": 3,
+STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 2, "thickness_map": 3, "escape_gain": 1,
                   **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 4}
 
 LINEAR, CLAMP_TO_EDGE = 9729, 33071
@@ -361,6 +363,8 @@ def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path,
     b.scale_mm[mi] = mesh_mm
     diag_mm = _miss_cap(surface) * mesh_mm
     mats = sorted({p.material for p in mesh.primitives if b.material_of.get(p.material) is not None})
+    for m in mats:  # each mesh has its own copy of its materials (`_split_shared_materials`)
+        b.material_of[m] = _with_escape_gain(b, surface, mesh_key, b.material_of[m], mesh_mm)
     b.sizes[mesh.name] = [_size_report(mesh.name, diag_mm, b.material_of[m], b.warnings) for m in mats]
     if not mats:
         return
@@ -406,6 +410,19 @@ def _atlas(b: _Baking, mi: int, mesh_key: str) -> tuple[Atlas, str]:
         "xatlas_peak_rss_mb": round(atlas.worker_peak_rss_mb, 1) if np.isfinite(atlas.worker_peak_rss_mb) else None,
     }
     return atlas, k_atlas
+
+
+def _with_escape_gain(b: _Baking, surface: Surface, mesh_key: str, material: Material, mesh_mm: float) -> Material:
+    """`material` with the escape gain of the mesh's closed `surface` (a cached stage), which every
+    technique's profile then carries: the ``montecarlo`` profile is matched to physics; the
+    classical dipole stays the papers' half-space model."""
+    if material.profile != "montecarlo":
+        return material
+    half_space = replace(material, escape_gain=(1.0, 1.0, 1.0))
+    found, _ = b.runner.run("escape_gain", STAGE_VERSIONS["escape_gain"], mesh_key, EscapeGainParams(half_space, mesh_mm),
+                            escape_gain_stage, surface,
+                            fresh=lambda g: all(np.isfinite(x) and x > 0 for x in g.gain) and len(g.gain) == 3)
+    return replace(material, escape_gain=tuple(float(x) for x in found.gain))
 
 
 def _thickness(b: _Baking, mi: int, surface: Surface, mesh_key: str) -> ThicknessResult:
@@ -525,7 +542,8 @@ def _baked_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: 
         b.mesh_extras[mi] = {t.name: b.mesh_extras[mi][t.name] for t in TECHNIQUES if t.name in b.mesh_extras[mi]}
     ref = TextureRef(len(b.textures) - 1, uv_set)
     for m in mats:
-        fallback = make_fallback(b.material_of[m], mesh_mm, thick * mesh_mm, ref, tmax)
+        # a Lambert-like look: the half-space albedo (docs/fidelity.md: the escape gain fits light spread by diffusion)
+        fallback = make_fallback(replace(b.material_of[m], escape_gain=(1.0, 1.0, 1.0)), mesh_mm, thick * mesh_mm, ref, tmax)
         b.scattering[m] = ScatteringMaterial(b.material_of[m], fallback, b.scene.materials[m].name)
 
 

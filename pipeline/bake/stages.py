@@ -20,6 +20,7 @@ from sssbake.pipeline.bake.cache import StageCache, stage_key
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.atlas import Atlas, compute_atlas
+from sssbake.pipeline.mesh.escape_gain import EscapeGain, escape_gain
 from sssbake.pipeline.mesh.load import load_scene
 from sssbake.pipeline.mesh.scene import Scene
 from sssbake.pipeline.mesh.thickness import ThicknessResult, bake_thickness
@@ -170,6 +171,19 @@ def thickness_map_stage(atlas: Atlas, primitives: list, surface: Surface, cap: f
                         params: ThicknessMapParams) -> ThicknessMap:
     """`bake_thickness_map` in `atlas`; `primitives`: per primitive its (positions, normals)."""
     return bake_thickness_map(atlas, primitives, surface, cap, params.rays, params.atlas.padding)
+
+
+@dataclass(frozen=True)
+class EscapeGainParams:
+    """A mesh's escape gain (`mesh.escape_gain`): its material (the half-space one) and millimetres
+    per file unit."""
+
+    material: Material
+    mm_per_unit: float
+
+
+def escape_gain_stage(surface: Surface, params: EscapeGainParams) -> EscapeGain:
+    return escape_gain(surface.positions, surface.faces, params.mm_per_unit, params.material)
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,10 @@ class Material:
         Relative index of refraction (>= 1).
     profile : str
         The diffusion profile model every technique evaluates (`PROFILE_MODELS`).
+    escape_gain : (3,) float
+        Per channel, how much more of the entering light the object this material fills lets out
+        than a flat semi-infinite medium (`mesh.escape_gain`): the profile's values are scaled by
+        it. 1 for a material on its own; the bake sets it per mesh for the ``montecarlo`` profile.
     """
 
     name: str
@@ -48,6 +52,7 @@ class Material:
     sigma_a: tuple[float, float, float]
     eta: float
     profile: str = DEFAULT_PROFILE
+    escape_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
         s = _rgb(self.sigma_s_prime, "sigma_s_prime", self.name)
@@ -57,6 +62,10 @@ class Material:
         if not (isinstance(self.eta, (int, float)) and math.isfinite(self.eta)) or self.eta < 1.0:
             raise MaterialError(f"material {self.name!r}: eta must be a finite number >= 1, got {self.eta!r}")
         object.__setattr__(self, "eta", float(self.eta))
+        gain = _rgb(self.escape_gain, "escape_gain", self.name)
+        if min(gain) <= 0.0:
+            raise MaterialError(f"material {self.name!r}: escape_gain must be > 0, got {list(gain)}")
+        object.__setattr__(self, "escape_gain", gain)
         if self.profile not in PROFILE_MODELS:
             raise MaterialError(f"material {self.name!r}: profile must be one of {', '.join(PROFILE_MODELS)}, "
                                 f"got {self.profile!r}")
@@ -112,16 +121,20 @@ class Material:
         """The inverse of `to_json`. A record without ``profile`` was written before the Monte Carlo
         profile existed, by the classical dipole."""
         return Material(str(data["name"]), tuple(float(v) for v in data["sigma_s_prime"]),
-                        tuple(float(v) for v in data["sigma_a"]), float(data["eta"]), str(data.get("profile", "dipole")))
+                        tuple(float(v) for v in data["sigma_a"]), float(data["eta"]), str(data.get("profile", "dipole")),
+                        tuple(float(v) for v in data.get("escape_gain", (1.0, 1.0, 1.0))))
 
     def to_json(self) -> dict:
-        return {
+        out = {
             "name": self.name,
             "sigma_s_prime": list(self.sigma_s_prime),
             "sigma_a": list(self.sigma_a),
             "eta": self.eta,
             "profile": self.profile,
         }
+        if self.escape_gain != (1.0, 1.0, 1.0):  # records of a material on its own stay as they were
+            out["escape_gain"] = list(self.escape_gain)
+        return out
 
 
 def _rgb(value, field: str, name: str) -> tuple[float, float, float]:

@@ -27,7 +27,7 @@ arrays to get (..., 3) results.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 
 import numpy as np
@@ -116,13 +116,20 @@ def classical_dipole(sigma_s_prime, sigma_a, eta: float) -> Profile:
 
 
 def profile_for(material: Material) -> Profile:
-    """The profile of `material` under its model (`Material.profile`)."""
-    return profile_of(material.sigma_s_prime, material.sigma_a, material.eta, material.profile)
+    """The profile of `material` under its model (`Material.profile`), scaled by its escape gain."""
+    return profile_of(material.sigma_s_prime, material.sigma_a, material.eta, material.profile, material.escape_gain)
 
 
 @cache
-def profile_of(sigma_s_prime: tuple, sigma_a: tuple, eta: float, model: str) -> Profile:
-    """The profile of σ'_s, σ_a ((3,) tuples, 1/mm), η under `model` (cached)."""
+def profile_of(sigma_s_prime: tuple, sigma_a: tuple, eta: float, model: str,
+               escape_gain: tuple = (1.0, 1.0, 1.0)) -> Profile:
+    """The profile of σ'_s, σ_a ((3,) tuples, 1/mm), η under `model`, its values times `escape_gain`
+    ((3,): `Material.escape_gain`) (cached)."""
+    p = _half_space_profile(sigma_s_prime, sigma_a, eta, model)
+    return p if escape_gain == (1.0, 1.0, 1.0) else replace(p, weight=p.weight * np.asarray(escape_gain))
+
+
+def _half_space_profile(sigma_s_prime: tuple, sigma_a: tuple, eta: float, model: str) -> Profile:
     if model == "dipole":
         return classical_dipole(sigma_s_prime, sigma_a, eta)
     if model != "montecarlo":

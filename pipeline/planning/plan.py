@@ -59,6 +59,17 @@ THIN = 4.0
 SMALL = 20.0
 #: Largest lpv grid the planner chooses (cells along the longest side).
 LPV_MAX_RESOLUTION = 128
+#: What each technique the rules choose is known to miss against physics (Mitsuba 3 volpath,
+#: `benchmarks/bench_fidelity.py`, figures in docs/fidelity.md), said with the choice: the pilot
+#: checks a technique against our own profile, which cannot show these.
+PHYSICS_LIMITS = {
+    "prt": "against physics prt beats best-fit Lambert on compact objects front- and back-lit, but sends "
+           "too little light through thin parts (docs/fidelity.md)",
+    "screen": "against physics screen misses light through parts the camera cannot see: back-lit it loses "
+              "to best-fit Lambert (docs/fidelity.md)",
+    "lpv": "against physics lpv is measured homogeneous only, and back-lit loses to best-fit Lambert there "
+           "(docs/fidelity.md)",
+}
 
 
 @dataclass(frozen=True)
@@ -305,8 +316,9 @@ def piloted(entry: PlanEntry, pilot, budget: float, pick: int | None = None) -> 
         verdict = f"{c.label}, the cheapest within it"
     else:
         verdict = f"none within it; {c.label}, the least RMSE"
+    moved = c.technique not in entry.techniques and c.technique in PHYSICS_LIMITS
     reason = (f"pilot on {pilot.vertices} vertices, image RMSE against the {pilot.reference} reference (budget {budget:g}): "
-              f"{measured}; {verdict}")
+              f"{measured}; {verdict}" + (f"; {PHYSICS_LIMITS[c.technique]}" if moved else ""))
     params = {**entry.params, **c.params} if c.technique in entry.techniques else dict(c.params)
     record = {"budget": budget, "vertices": pilot.vertices, "reference": pilot.reference,
               "candidates": [{"label": k.label, "technique": k.technique, "params": k.params} for k in pilot.candidates],
@@ -343,7 +355,8 @@ def decide(asset: str, mesh: str, name: str, material, deforming: bool, options:
                 "texel_mm": texel}
 
     def entry(techniques, reason, extra=None):
-        return PlanEntry(asset, mesh, name, tuple(techniques), extra or {}, (reason,), measures)
+        limits = "".join(f"; {PHYSICS_LIMITS[t]}" for t in techniques)
+        return PlanEntry(asset, mesh, name, tuple(techniques), extra or {}, (reason + limits,), measures)
 
     if radius < texel:
         return entry((), f"nearly opaque at this scale: half of R_d lies within {radius:.3g} mm, under the "

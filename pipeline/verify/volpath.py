@@ -33,7 +33,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 
@@ -55,7 +55,9 @@ from sssbake.pipeline.render.image_metrics import (
 from sssbake.pipeline.render.renderer import DEFAULT_LIGHT, Camera, Renderer, RenderLight, fit_camera
 from sssbake.pipeline.techniques.registry import BY_NAME, NAMES
 from sssbake.pipeline.techniques.technique import VerifyUnit
+from sssbake.pipeline.verify.fallback_radiance import FallbackLook
 from sssbake.pipeline.verify.verify import draw_instances, lambert_q, light_direction, unit_surface
+from sssbake.pipeline.verify.volpath_measures import block_reading, measure, pixel_reading, vertex_reading
 
 #: Mitsuba variant of the truth: one channel at a time (LLVM: vectorised on the CPU).
 VARIANT = "llvm_ad_mono"
@@ -404,13 +406,6 @@ def lobe_q(field: np.ndarray, towards: np.ndarray, weight: np.ndarray, albedo: n
     return irradiance * np.asarray(albedo) / np.pi
 
 
-def relative_rmse(image: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
-    """||image - truth|| / ||truth|| over the (H, W) bool `mask`'s pixels and the three channels
-    of the (H, W, 3) images (0 for an empty mask or a black truth)."""
-    norm = float(np.linalg.norm(truth[mask]))
-    return float(np.linalg.norm(image[mask] - truth[mask])) / norm if norm > 0 else 0.0
-
-
 def verify_volpath(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT,
                    size: int = VOLPATH_SIZE, spp: int = VOLPATH_SPP, out_dir: str | os.PathLike | None = None,
                    cache_dir: str | os.PathLike | None = None, lpv_steps: int | None = None) -> dict:
@@ -443,10 +438,13 @@ def verify_volpath(path: str | os.PathLike, technique: str = "prt", light_dir=DE
         truth: above 1, too dark), ``rmse_relative_fitted`` (the technique times it),
         ``lambert_albedo`` (per material name, (3,): its profile's total reflectance),
         ``rmse_relative_lambert`` (plain Lambert of that albedo), ``lambert_scale`` (3,) and
-        ``rmse_relative_lambert_fitted``,
+        ``rmse_relative_lambert_fitted``, ``rmse_relative_fallback`` (what a glTF viewer draws of the
+        standard fallback material, `fallback_radiance`; absent when its base colour is a texture),
         ``noise_floor`` (the truth's own relative noise: ||A - B|| / (2 ||T||) of its halves A, B
-        and mean T), ``rmse_relative_denoised`` (each of the four errors less the floor in
-        quadrature, sqrt(max(r² - floor², 0)), by its key), ``rmse_object`` and
+        and mean T), ``rmse_relative_denoised`` (each error less the floor in quadrature,
+        sqrt(max(r² - floor², 0)), by its key), ``measures`` (the same errors read per block of
+        pixels and per visible vertex, `volpath_measures.measure` by ``block`` and ``vertex``, each
+        with its own noise floor), ``rmse_object`` and
         ``rmse_object_lambert`` (verify's [0, 1] image RMSE against the truth), ``exposure``,
         ``pixels`` (object pixels compared), ``spp``, ``image_size``, ``mitsuba`` (version),
         ``truth_seconds``, ``truth_cached``, ``pngs`` (``comparison``: truth | technique |
@@ -461,7 +459,7 @@ def verify_volpath(path: str | os.PathLike, technique: str = "prt", light_dir=DE
     directions, weights = lobe.quadrature()
     data = hooks.read(path)
     file, scene, instances = draw_instances(path, technique, data)
-    bodies, items, lambert_items, albedos = [], [], [], {}
+    bodies, items, lambert_items, fallback_items, albedos = [], [], [], [], {}
     runtime, memo = {"lpv_steps": lpv_steps}, {}
     for mesh, unit, world in instances:
         prim, material, mm, surface, weld = unit_surface(file, scene, mesh, unit)
@@ -475,7 +473,9 @@ def verify_volpath(path: str | os.PathLike, technique: str = "prt", light_dir=DE
         local /= np.linalg.norm(local, axis=1, keepdims=True)
         visible = direction_visibility(surface.positions, surface.faces, surface.normals, local)[weld]
         base = dict(positions=prim.positions, normals=prim.normals, faces=prim.faces, model=world, eta=material.eta)
-        albedo = albedos.setdefault(material.name, total_reflectance(profile_for(material)))
+        # plain Lambert is the half-space's R_tot: the escape gain is the profile techniques' (docs/fidelity.md)
+        half_space = replace(material, escape_gain=(1.0, 1.0, 1.0))
+        albedo = albedos.setdefault(material.name, total_reflectance(profile_for(half_space)))
         # Here lambert_q is the plain Lambert radiance of the profile's total reflectance, not verify's
         # grey cosine: spectral's runtime is the plain Lambert shader, which a viewer draws with
         # the fallback's base colour, so its unscaled figure means what it ships.
@@ -487,12 +487,17 @@ def verify_volpath(path: str | os.PathLike, technique: str = "prt", light_dir=DE
         items.append(hooks.verify_items(at, data, runtime)[0])
         # η = 1: no exit Fresnel on the q draw, the plain Lambert radiance itself.
         lambert_items.append({**base, "eta": 1.0, "q": at.lambert_q(prim.normals)})
+        look = FallbackLook.of(file.gltf.materials[scene.meshes[mesh].primitives[unit[0]].material])
+        fallback_items.append(None if look is None else
+                              {**base, "eta": 1.0, "q": look.radiance(prim.normals, local, weights, visible)})
 
     renderer = Renderer((size, size))
     camera = fit_camera(np.concatenate([(it["model"][:3, :3] @ it["positions"].T).T + it["model"][:3, 3]
                                         for it in items]))
     image, covered = lobe_image(renderer, items, camera, directions, weights)
     lambert, lambert_covered = lobe_image(renderer, lambert_items, camera, directions, weights)
+    # A textured fallback's look is per texel, which a vertex q cannot draw: no fallback figure.
+    fallback = None if None in fallback_items else lobe_image(renderer, fallback_items, camera, directions, weights)[0]
     truth, cached = render_truth(bodies, View.of(camera, size), lobe, spp, StageCache(
         Path(cache_dir) if cache_dir is not None else path.parent / ".sssbake-cache"))
     # Silhouette pixels are part background in volpath's pixel-averaged image: compare inside them.
@@ -502,15 +507,15 @@ def verify_volpath(path: str | os.PathLike, technique: str = "prt", light_dir=DE
     reference = truth.image
     technique_scale = best_fit_scale(image, reference, mask)
     lambert_scale = best_fit_scale(lambert, reference, mask)
-    a, b = truth.halves
-    norm = float(np.linalg.norm(reference[mask]))
-    if not norm > 0:
+    if not np.linalg.norm(reference[mask]) > 0:
         raise VerifyError(f"verify: {path}: volpath's image of the object is black (the lobe lights nothing in view)")
-    floor = float(np.linalg.norm((a - b)[mask])) / (2.0 * norm)
-    errors = {"rmse_relative": relative_rmse(image, reference, mask),
-              "rmse_relative_fitted": relative_rmse(image * technique_scale, reference, mask),
-              "rmse_relative_lambert": relative_rmse(lambert, reference, mask),
-              "rmse_relative_lambert_fitted": relative_rmse(lambert * lambert_scale, reference, mask)}
+    compared = {"rmse_relative": image, "rmse_relative_fitted": image * technique_scale,
+                "rmse_relative_lambert": lambert, "rmse_relative_lambert_fitted": lambert * lambert_scale}
+    if fallback is not None:
+        compared["rmse_relative_fallback"] = fallback
+    pixels = measure(pixel_reading(mask), compared, truth.halves)
+    readings = [block_reading(mask), vertex_reading([(b.positions, b.faces, b.normals) for b in bodies], camera, mask)]
+    measures = {r.name: measure(r, compared, truth.halves) for r in readings}
     shown = np.where(covered[..., None], reference, 0.0)  # volpath's background is the lobe itself
     exposure = shared_exposure(shown, mask)
     out_dir = Path(out_dir) if out_dir is not None else path.parent
@@ -528,13 +533,14 @@ def verify_volpath(path: str | os.PathLike, technique: str = "prt", light_dir=DE
         "lobe_directions": len(directions),
         "specular": "subtracted from the truth",
         "specular_share": float(truth.specular[mask].sum() / (reference + truth.specular)[mask].sum()),
-        **errors,
+        **pixels["rmse_relative"],
         "technique_scale": technique_scale.tolist(),
         "lambert_albedo": {name: albedo.tolist() for name, albedo in albedos.items()},
         "lambert_scale": lambert_scale.tolist(),
-        "noise_floor": floor,
+        "noise_floor": pixels["noise_floor"],
         # the truth's noise adds in quadrature to each error (it is independent of the image compared)
-        "rmse_relative_denoised": {k: float(np.sqrt(max(v * v - floor * floor, 0.0))) for k, v in errors.items()},
+        "rmse_relative_denoised": pixels["rmse_relative_denoised"],
+        "measures": measures,
         "rmse_object": rmse(image, shown, exposure, mask),
         "rmse_object_lambert": rmse(lambert, shown, exposure, mask),
         "exposure": exposure,

@@ -55,8 +55,9 @@ def recomputed(report: dict) -> set[str]:
 
 
 @pytest.mark.parametrize("option, value, expected", [
-    ("scale_mm", 2.0, MESH_TECHNIQUES | {"pilot"}),  # thickness is in file units; screen bakes at 1 mm per unit
-    ("material", "skin1", MESH_TECHNIQUES | {"screen", "pilot"}),
+    # thickness is in file units; screen bakes at 1 mm per unit but reads the escape gain, which follows the size
+    ("scale_mm", 2.0, MESH_TECHNIQUES | {"escape_gain", "screen", "pilot"}),
+    ("material", "skin1", MESH_TECHNIQUES | {"escape_gain", "screen", "pilot"}),
     ("atlas_resolution", 48, ATLAS_READERS),
     ("atlas_padding", 6, ATLAS_READERS),
     ("thickness_rays", 4, {"thickness", "thickness_map"}),

@@ -80,3 +80,16 @@ def test_derived_lengths():
     np.testing.assert_allclose(m.mean_free_path_mm, [1.0, 1 / 2.5, 1 / 4.0])
     assert m.diffusion_length_mm[0] == np.inf
     np.testing.assert_allclose(m.diffusion_length_mm[1:], 1 / np.sqrt(3 * np.array([0.5, 1.0]) * [2.5, 4.0]))
+
+
+def test_escape_gain_travels_with_the_material_record():
+    from dataclasses import replace
+
+    m = preset("skin1")
+    assert "escape_gain" not in m.to_json()  # a material on its own keeps its old record
+    gained = replace(m, escape_gain=(1.3, 1.2, 1.1))
+    assert Material.from_json(json.loads(json.dumps(gained.to_json()))) == gained
+    assert Material.from_json(m.to_json()).escape_gain == (1.0, 1.0, 1.0)
+    for bad in ((0.0, 1.0, 1.0), (float("nan"), 1.0, 1.0), (1.0, 1.0)):
+        with pytest.raises(MaterialError, match="escape_gain"):
+            replace(m, escape_gain=bad)

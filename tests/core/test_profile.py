@@ -16,6 +16,7 @@ from sssbake.pipeline.core.profile import (
     profile_of,
     profile_total,
     radius_for_energy,
+    radius_holding,
     total_for_albedo,
     total_reflectance,
 )
@@ -212,3 +213,17 @@ def test_montecarlo_profile_is_radiance_normalised():
     np.testing.assert_allclose(profile_total(p) * exit_normalisation(m.eta), total_reflectance(p), rtol=1e-12)
     d = profile_for(preset("marble", "dipole"))
     np.testing.assert_allclose(profile_total(d), total_reflectance(d), rtol=1e-12)
+
+
+@pytest.mark.parametrize("model", ["montecarlo", "dipole"])
+def test_escape_gain_scales_every_value_and_the_total(model):
+    from dataclasses import replace
+
+    m = preset("skin1", model)
+    gain = np.array([1.3, 1.2, 1.1])
+    half, gained = profile_for(m), profile_for(replace(m, escape_gain=tuple(gain)))
+    r = np.geomspace(1e-3, 30.0, 50)
+    np.testing.assert_allclose(diffuse_reflectance_profile(r, gained), diffuse_reflectance_profile(r, half) * gain,
+                               rtol=1e-12)
+    np.testing.assert_allclose(total_reflectance(gained), total_reflectance(half) * gain, rtol=1e-12)
+    np.testing.assert_allclose(radius_holding(gained, 0.5), radius_holding(half, 0.5), rtol=1e-6)  # the shape stays

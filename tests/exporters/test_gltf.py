@@ -474,7 +474,7 @@ def test_spectral_normals_and_tables_round_trip_and_validate(tmp_path):
 
 
 def test_screen_tables_on_the_material_round_trip_and_validate(tmp_path):
-    from fixtures import bake_screen_sphere
+    from fixtures import bake_screen_sphere, baked_material
 
     from sssbake.exporters.gltf_validator import ValidatorUnavailable, validate_glb
     from sssbake.pipeline.techniques.screen.samples import screen_samples
@@ -486,7 +486,7 @@ def test_screen_tables_on_the_material_round_trip_and_validate(tmp_path):
     material = gltf.materials[index]
     assert "screen" not in gltf.meshes[0].extensions[EXTENSION]
     tables = technique_tables(load_sssbake_gltf(tmp_path / "ball.glb"), "materials", index, "screen")
-    expected = screen_samples(preset("marble"), options.technique_options("screen").samples_options())
+    expected = screen_samples(baked_material(result), options.technique_options("screen").samples_options())
     assert (tables["technique"], tables["samples"], tables["uniform"], tables["driver"]) == (
         "screen", 12, 4, expected.driver)
     assert tables["tableReachMm"] == pytest.approx(expected.table_reach_mm, rel=1e-12)

@@ -317,15 +317,15 @@ def test_spectral_normal_primvar_and_tables(tmp_path):
 
 
 def test_screen_tables_are_attributes_of_the_material_prim(tmp_path):
-    from fixtures import bake_screen_sphere
+    from fixtures import bake_screen_sphere, baked_material
 
     from sssbake.exporters.usd import technique_tables
     from sssbake.pipeline.techniques.screen.samples import screen_samples
 
-    _, options = bake_screen_sphere(tmp_path, screen_uniform=0)
+    result, options = bake_screen_sphere(tmp_path, screen_uniform=0)
     stage = Usd.Stage.Open(str(tmp_path / "ball.usdc"))  # held: its prims die with it
     (material,) = [p for p in stage.Traverse() if p.IsA(UsdShade.Material) and p.GetAttribute("sss:extras")]
-    expected = screen_samples(preset("marble"), options.technique_options("screen").samples_options())
+    expected = screen_samples(baked_material(result), options.technique_options("screen").samples_options())
     for name, value, type_name in (("offsets", expected.offsets, "float2[]"), ("weights", expected.weights, "float[]"),
                                    ("rdTable", expected.table.T, "float3[]")):
         attribute = material.GetAttribute("sss:screen:" + name)

@@ -13,7 +13,7 @@ from sssbake.pipeline.cli import main
 from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.options import BAKE_DEFAULTS
-from sssbake.pipeline.planning.plan import THIN, lambert_line, plan_asset, worse_than_lambert
+from sssbake.pipeline.planning.plan import PHYSICS_LIMITS, THIN, lambert_line, plan_asset, worse_than_lambert
 
 
 def mesh_file(folder, name, mesh):
@@ -47,6 +47,9 @@ def test_a_thin_leaf_needs_a_global_technique_and_a_thick_ball_a_local_one(tmp_p
     ball = only(plan_asset(mesh_file(tmp_path, "ball.obj", trimesh.creation.icosphere(subdivisions=3, radius=1.0)),
                            BAKE_DEFAULTS.merged({"material": "skin1", "scale_mm": 100.0})))
     assert ball.techniques == ("screen",) and "thick and local" in ball.reasons[0]
+    # each choice says what it is known to miss against physics (docs/fidelity.md), and only its own
+    assert leaf.reasons[0].endswith(f"; prt; {PHYSICS_LIMITS['prt']}") and "screen misses" not in leaf.reasons[0]
+    assert ball.reasons[0].endswith(f"; screen, nothing per vertex; {PHYSICS_LIMITS['screen']}")
     np.testing.assert_allclose(ball.measures["median_thickness_mm"], 200.0, rtol=0.02)  # a diameter
     # measured: prt 0.0081 against Lambert's 0.0909 on the leaf's 26 vertices, screen 0.0041 against 0.0151
     for entry, technique, vertices in ((leaf, "prt", 26), (ball, "screen", 642)):

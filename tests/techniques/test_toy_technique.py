@@ -5,6 +5,7 @@ worker processes, verifies, and gets its own option, flag and report block."""
 import json
 import os
 import subprocess
+from dataclasses import replace
 import sys
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import numpy as np
 import trimesh
 
 from sssbake.pipeline.core.profile import profile_for, profile_total
-from sssbake.pipeline.core.materials import preset
+from sssbake.pipeline.core.materials import Material, preset
 
 TESTS = Path(__file__).resolve().parents[1]
 
@@ -34,7 +35,10 @@ def test_toy_technique_bakes_and_verifies(tmp_path):
     assert baked.returncode == 0, baked.stderr
     report = json.loads((tmp_path / "out" / "ball.report.json").read_text())
     (block,) = report["toy"].values()
-    params = profile_for(preset("marble"))
+    # the material as baked: marble with the ball's escape gain
+    (record,) = [m["scattering"] for m in report["materials"].values() if m["scattering"]]
+    params = profile_for(Material.from_json(record))
+    assert replace(Material.from_json(record), escape_gain=(1.0, 1.0, 1.0)) == preset("marble")
     np.testing.assert_allclose(block["albedo"], 0.5 * profile_total(params),
                                rtol=1e-12)
     assert report["stages"]["toy"]["runs"] == 1 and report["validation"]["gltf"]["errors"] == 0

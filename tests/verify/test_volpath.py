@@ -183,6 +183,15 @@ def test_sphere_against_volpath_end_to_end(mitsuba, tmp_path, capsys):
     # the level is within reason: millimetres, the lobe's irradiance and the exit Fresnel line up
     assert all(0.6 < s < 1.6 for s in result["technique_scale"] + result["lambert_scale"])
     assert set(result["lambert_albedo"]) == {"marble"}
+    # the fallback's figure, and every error read per block and per visible vertex with its own floor
+    assert result["noise_floor"] * 0.9 < result["rmse_relative_fallback"] < 1.0
+    block, vertex = result["measures"]["block"], result["measures"]["vertex"]
+    assert 0 < block["noise_floor"] < result["noise_floor"]  # blocks average the truth's noise down
+    assert 0 < block["samples"] < result["pixels"] and 0 < vertex["samples"] < 642
+    for m in (block, vertex):
+        assert set(m["rmse_relative"]) == {"rmse_relative", "rmse_relative_fitted", "rmse_relative_lambert",
+                                           "rmse_relative_lambert_fitted", "rmse_relative_fallback"}
+        assert all(0 <= m["rmse_relative_denoised"][k] <= v < 1.0 for k, v in m["rmse_relative"].items())
     assert np.allclose(result["lambert_albedo"]["marble"], total_reflectance(profile_for(preset("marble"))))
     assert all(Path(p).stat().st_size > 0 for p in result["pngs"].values())
     # the truth comes from the cache the second time; the text output says what was done

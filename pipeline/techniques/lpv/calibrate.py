@@ -21,7 +21,7 @@ from sssbake.pipeline.techniques.lpv.matrices import lpv_basis
 from sssbake.pipeline.techniques.lpv.propagate import propagation_steps, radiance
 
 
-def render_scales(grid: LpvGrid, max_steps: int, profile: str) -> np.ndarray:
+def render_scales(grid: LpvGrid, max_steps: int, profile: str, escape_gain: tuple = (1.0, 1.0, 1.0)) -> np.ndarray:
     """The rendering's scale per colour channel for 1 .. `max_steps` propagation steps.
 
     Parameters
@@ -32,6 +32,8 @@ def render_scales(grid: LpvGrid, max_steps: int, profile: str) -> np.ndarray:
         >= 1.
     profile : str
         The diffusion profile model whose slab radiance the scale matches (`materials.PROFILE_MODELS`).
+    escape_gain : (3,) float
+        The material's `Material.escape_gain`, which scales that radiance.
 
     Returns
     -------
@@ -60,7 +62,8 @@ def render_scales(grid: LpvGrid, max_steps: int, profile: str) -> np.ndarray:
     injected[depth - 1, 0, 0] = transmitted * LOBE[[0, 1, 1, 1]] * lpv_basis(np.array([[0.0, 0.0, -1.0]]))[0]
     surface = np.array([[0.5 * grid.cell, 0.5 * grid.cell, depth * grid.cell]])
     up = np.array([[0.0, 0.0, 1.0]])
-    want = profile_total(profile_of(tuple(mean["albedo"]), tuple(1.0 - mean["albedo"]), grid.eta, profile))
+    want = profile_total(profile_of(tuple(mean["albedo"]), tuple(1.0 - mean["albedo"]), grid.eta, profile,
+                                    tuple(escape_gain)))
     want = want * fresnel_transmittance(grid.eta, 1.0) / np.pi
     # The injected lobe about -z renders nothing along +z (Φ/4π - Φ/4π), so only the propagated
     # light is summed: the lobe's rounding (1e-16 Φ) would swamp it where a step keeps ~1e-34.

@@ -54,7 +54,7 @@ def bake_lpv(surface: Surface, mm_per_unit: float, material: Material, grid_opti
     grid = voxelise(surface, mm_per_unit, source, material.eta, grid_options)
     seconds["voxelise"] = time.perf_counter() - t
     t = time.perf_counter()
-    scales = render_scales(grid, max_steps, material.profile)
+    scales = render_scales(grid, max_steps, material.profile, material.escape_gain)
     seconds["calibrate"] = time.perf_counter() - t
     # the field's parameters travel with the grid: a reader can rebuild it (verify's reference)
     tables = lpv_tables(grid, propagation_matrices(), scales, field,

@@ -94,7 +94,7 @@ def lpv_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     for res in sorted(resolutions):
         t = time.perf_counter()
         voxels = voxelise(surface, mm_per_unit, source, material.eta, replace(grid, resolution=res))
-        scales = render_scales(voxels, max_steps, material.profile)
+        scales = render_scales(voxels, max_steps, material.profile, material.escape_gain)
         seconds = time.perf_counter() - t
         stored = lpv_bytes(lpv_tables(voxels, propagation_matrices(), scales, field))["total"]
         configs += [(res, voxels, scales, seconds, stored, s) for s in sorted(steps)]

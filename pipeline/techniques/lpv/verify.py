@@ -125,7 +125,8 @@ def lpv_reference(surface: Surface, source: LpvSource, grid: LpvGrid, steps: int
     options = replace(source.grid, resolution=finer)
     voxels = voxelise(surface, source.mm_per_unit, source.material_field(), grid.eta, options)
     finer_steps = min(max(1, int(round(steps * grid.cell_mm / voxels.cell_mm))), MAX_STEPS)
-    return voxels, render_scales(voxels, finer_steps, source.material.profile), finer_steps, finer
+    scales = render_scales(voxels, finer_steps, source.material.profile, source.material.escape_gain)
+    return voxels, scales, finer_steps, finer
 
 
 def lpv_leaks(items: list[dict], shot: VerifyShot) -> dict:

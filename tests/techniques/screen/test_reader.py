@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pygltflib
 import pytest
-from fixtures import bake_screen_sphere
+from fixtures import bake_screen_sphere, baked_material
 
 from sssbake.exporters.gltf import EXTENSION
 from sssbake.pipeline.core.errors import StaleDataError
@@ -19,7 +19,7 @@ from sssbake.pipeline.techniques.screen.samples import screen_samples
 def baked(tmp_path_factory):
     folder = tmp_path_factory.mktemp("read_screen")
     result, options = bake_screen_sphere(folder, material="skin1", screen_samples=10, screen_uniform=3)
-    return folder, options, screen_samples(preset("skin1"), options.technique_options("screen").samples_options())
+    return folder, options, screen_samples(baked_material(result), options.technique_options("screen").samples_options())
 
 
 def assert_same(read, made):
