@@ -15,8 +15,8 @@ cast against the surface with embree; a photon that reaches the boundary is refl
 the exact Fresnel reflectance from inside (total internal reflection included) or leaves; one that
 does not scatters isotropically or is absorbed (analog, with probability 1 - α'). The gain is the
 share that leaves over the share that leaves a plane under the same entry law, walked with the
-same random numbers (the ratio's noise then partly cancels). A closed surface only: through a
-hole a photon would walk on outside. Deterministic for a given seed.
+same random numbers (the ratio's noise then partly cancels). A closed, consistently wound surface
+only (`winding.edge_defects`): through a hole a photon would walk on outside. Deterministic for a given seed.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from embreex.mesh_construction import TriangleMesh
 
 from sssbake.pipeline.core.fresnel import fresnel_transmittance
 from sssbake.pipeline.core.materials import Material
+from sssbake.pipeline.mesh.winding import edge_defects
 
 #: Photons per channel at least, and at most (the count grows where few leave, `TARGET_ERROR`).
 PHOTONS = (16_384, 262_144)
@@ -64,7 +65,7 @@ def escape_gain(positions: np.ndarray, faces: np.ndarray, mm_per_unit: float, ma
     """The escape gain of `material` inside the surface `faces` (m, 3) over `positions` (n, 3)
     (file units, `mm_per_unit` mm each): see the module docstring."""
     faces = np.asarray(faces, dtype=np.int64)
-    if not is_closed(faces):
+    if not edge_defects(faces).closed:  # an opening lets photons out; a fold turns an entry normal inward
         return EscapeGain((1.0, 1.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0, 0, 0), False)
     x = np.asarray(positions, dtype=np.float64) * float(mm_per_unit)
     x = x - 0.5 * (x.min(axis=0) + x.max(axis=0))  # embree is float32: centred keeps its precision
@@ -93,15 +94,6 @@ def escape_gain(positions: np.ndarray, faces: np.ndarray, mm_per_unit: float, ma
         planes.append(plane)
         counts.append(photons)
     return EscapeGain(tuple(gains), tuple(escapes), tuple(planes), tuple(counts), True)
-
-
-def is_closed(faces: np.ndarray) -> bool:
-    """Whether every edge of `faces` (m, 3) is shared by exactly two of them."""
-    if len(faces) == 0:
-        return False
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
-    return bool(np.all(counts == 2))
 
 
 def _walk(body, sigma_s: float, sigma_a: float, eta: float, photons: int, seed: int) -> float:

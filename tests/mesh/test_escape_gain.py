@@ -5,7 +5,8 @@ import numpy as np
 import trimesh
 
 from sssbake.pipeline.core.materials import preset
-from sssbake.pipeline.mesh.escape_gain import escape_gain, is_closed
+from sssbake.pipeline.mesh.escape_gain import escape_gain
+from sssbake.pipeline.mesh.winding import edge_defects
 
 
 def test_a_small_sphere_lets_out_what_a_walk_in_an_exact_sphere_does():
@@ -37,6 +38,6 @@ def test_winding_does_not_matter_and_an_open_surface_keeps_the_half_space():
     # photons started outside a wrongly oriented surface would walk off and never count
     np.testing.assert_allclose(inward.gain, outward.gain, atol=0.02)
     bowl = sphere.faces[sphere.triangles_center[:, 2] < 5.0]  # the cap cut off: photons would walk out
-    assert not is_closed(bowl) and is_closed(sphere.faces)
+    assert not edge_defects(bowl).closed and edge_defects(sphere.faces).closed
     g = escape_gain(sphere.vertices, bowl, 1.0, preset("skin1"))
     assert not g.closed and g.gain == (1.0, 1.0, 1.0) and g.photons == (0, 0, 0)
