@@ -74,10 +74,12 @@ def size_in_diffusion_lengths(glb: Path) -> float:
     return min(min(s["size_in_diffusion_lengths"]) for entries in sizes.values() for s in entries)
 
 
-def escape_gain(glb: Path) -> list:
-    """The bake's escape gain per channel (`pipeline/mesh/escape_gain.py`; 1 where none applied)."""
+def object_gains(glb: Path) -> dict:
+    """The bake's escape and back gains per channel (`pipeline/core/back_share.py`; 1 where none
+    applied)."""
     materials = json.loads(glb.with_name(f"{glb.stem}.report.json").read_text())["materials"]
-    return [m["scattering"].get("escape_gain", [1.0, 1.0, 1.0]) for m in materials.values() if m["scattering"]][0]
+    scattering = [m["scattering"] for m in materials.values() if m["scattering"]][0]
+    return {key: scattering.get(key, [1.0, 1.0, 1.0]) for key in ("escape_gain", "back_gain")}
 
 
 def case(glb: Path, light: tuple, args, out: Path) -> dict:
@@ -135,7 +137,7 @@ def main() -> None:
             lengths = size_in_diffusion_lengths(glb)
             for light, direction in LIGHTS.items():
                 row = {"mesh": name, "material": material, "light": light, "size_lengths": lengths,
-                       "escape_gain": escape_gain(glb),
+                       **object_gains(glb),
                        **case(glb, direction, args, out)}
                 rows.append(row)
                 beats = [t for t in TECHNIQUES if row["techniques"][t]["block"] < row["baselines"]["best-fit Lambert"]["block"]]

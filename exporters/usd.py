@@ -568,6 +568,7 @@ def _scattering_attributes(scattering: ScatteringMaterial, mm_per_unit: float, w
         (SSS + "eta", _T.Float, finite_number(mat.eta, f"{what} eta")),
         (SSS + "profile", _T.Token, mat.profile),
         (SSS + "escapeGain", _T.Float3, Gf.Vec3f(*_vec3(mat.escape_gain, f"{what} escape_gain"))),
+        (SSS + "backGain", _T.Float3, Gf.Vec3f(*_vec3(mat.back_gain, f"{what} back_gain"))),
         (SSS + "fallback:baseColor", _T.Color3f, Gf.Vec3f(*_vec3(fb.base_color, f"{what} fallback base_color"))),
         (SSS + "fallback:thicknessFactor", _T.Float, finite_number(fb.thickness_factor, f"{what} thickness_factor")),
         (SSS + "fallback:attenuationColor", _T.Color3f,

@@ -420,7 +420,7 @@ def _technique_arguments(parser) -> None:
 def _profile_argument(parser, default: str | None = None) -> None:
     parser.add_argument("--profile", choices=PROFILE_MODELS, default=default,
                         help="diffusion profile: montecarlo matches a Monte Carlo random walk (docs/profile.md), scaled in a bake by each "
-                             "closed mesh's escape gain (docs/fidelity.md); "
+                             "closed mesh's escape and back gains (docs/fidelity.md); "
                              f"dipole is Jensen et al. 2001's, to reproduce the papers (default {BAKE_DEFAULTS.profile})")
 
 

@@ -41,8 +41,10 @@ def test_samples_bake_clean(baked_samples):
     assert blob["plan"] == [] and blob["stages"]["simplify"]["skipped"]  # the config names lpv
     slab = json.loads((out / "thin_slab.report.json").read_text())
     assert slab["materials"]["sssbake_default"]["scattering"]["name"] == "skin1"
-    # a closed 2 mm slab lets out far more of the light entering it than a half-space (escape_gain.py)
-    assert min(slab["materials"]["sssbake_default"]["scattering"]["escape_gain"]) > 1.2
+    # a closed 2 mm slab lets far more light through than the half-space profile carries across it
+    # (core/back_share.py: ~2.8, 5, 12 x for skin1), and that is in the file's material
+    scattering = slab["materials"]["sssbake_default"]["scattering"]
+    assert min(scattering["back_gain"]) > 2.0 and min(scattering["escape_gain"]) > 1.0
     # the heterogeneous sample: veined marble, an lpv grid whose absorption varies
     (veined,) = json.loads((out / "blob.report.json").read_text())["lpv"].values()
     assert veined["field"] == "marble" and veined["cellsWithMedium"] > 0

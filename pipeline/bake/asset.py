@@ -62,7 +62,7 @@ from sssbake.pipeline.techniques.registry import TECHNIQUES
 from sssbake.pipeline.techniques.technique import MATERIAL, MESH, Budget, TechniqueBake
 
 # Bump a stage's version when its output for the same input changes (a technique's: its `stage_version`).
-STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 2, "thickness_map": 3, "escape_gain": 1,
+STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 2, "thickness_map": 3, "escape_gain": 2,
                   **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 4}
 
 LINEAR, CLAMP_TO_EDGE = 9729, 33071
@@ -418,11 +418,12 @@ def _with_escape_gain(b: _Baking, surface: Surface, mesh_key: str, material: Mat
     classical dipole stays the papers' half-space model."""
     if material.profile != "montecarlo":
         return material
-    half_space = replace(material, escape_gain=(1.0, 1.0, 1.0))
-    found, _ = b.runner.run("escape_gain", STAGE_VERSIONS["escape_gain"], mesh_key, EscapeGainParams(half_space, mesh_mm),
-                            escape_gain_stage, surface,
-                            fresh=lambda g: all(np.isfinite(x) and x > 0 for x in g.gain) and len(g.gain) == 3)
-    return replace(material, escape_gain=tuple(float(x) for x in found.gain))
+    half_space = material.half_space
+    (_, gain, back), _ = b.runner.run("escape_gain", STAGE_VERSIONS["escape_gain"], mesh_key,
+                                      EscapeGainParams(half_space, mesh_mm), escape_gain_stage, surface,
+                                      fresh=lambda found: all(len(g) == 3 and all(np.isfinite(x) and x > 0 for x in g)
+                                                              for g in found[1:]))
+    return replace(material, escape_gain=tuple(float(x) for x in gain), back_gain=tuple(float(x) for x in back))
 
 
 def _thickness(b: _Baking, mi: int, surface: Surface, mesh_key: str) -> ThicknessResult:
@@ -543,7 +544,7 @@ def _baked_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: 
     ref = TextureRef(len(b.textures) - 1, uv_set)
     for m in mats:
         # a Lambert-like look: the half-space albedo (docs/fidelity.md: the escape gain fits light spread by diffusion)
-        fallback = make_fallback(replace(b.material_of[m], escape_gain=(1.0, 1.0, 1.0)), mesh_mm, thick * mesh_mm, ref, tmax)
+        fallback = make_fallback(b.material_of[m].half_space, mesh_mm, thick * mesh_mm, ref, tmax)
         b.scattering[m] = ScatteringMaterial(b.material_of[m], fallback, b.scene.materials[m].name)
 
 

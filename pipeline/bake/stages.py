@@ -21,6 +21,8 @@ from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.atlas import Atlas, compute_atlas
 from sssbake.pipeline.mesh.escape_gain import EscapeGain, escape_gain
+from sssbake.pipeline.core.back_share import MIN_BEHIND, gathered_shares, object_gains
+from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.mesh.load import load_scene
 from sssbake.pipeline.mesh.scene import Scene
 from sssbake.pipeline.mesh.thickness import ThicknessResult, bake_thickness
@@ -182,8 +184,17 @@ class EscapeGainParams:
     mm_per_unit: float
 
 
-def escape_gain_stage(surface: Surface, params: EscapeGainParams) -> EscapeGain:
-    return escape_gain(surface.positions, surface.faces, params.mm_per_unit, params.material)
+def escape_gain_stage(surface: Surface, params: EscapeGainParams) -> tuple[EscapeGain, tuple, tuple]:
+    """The walk's `EscapeGain` and the `Material.escape_gain` and `Material.back_gain` it implies
+    (`core.back_share`). A mesh no light crosses (too few photons left behind anywhere) keeps one
+    factor for all its light, the walk's gain, and skips the gather."""
+    walk = escape_gain(surface.positions, surface.faces, params.mm_per_unit, params.material)
+    if not walk.closed or max(walk.behind) < MIN_BEHIND:
+        return walk, walk.gain, (1.0, 1.0, 1.0)
+    mm = params.mm_per_unit
+    front, back = gathered_shares(surface.positions * mm, surface.faces, surface.normals,
+                                  surface.vertex_areas * mm * mm, profile_for(params.material))
+    return (walk, *object_gains(walk.front, walk.back, walk.behind, front, back))
 
 
 @dataclass(frozen=True)

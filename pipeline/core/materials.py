@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 from importlib import resources
 
@@ -44,7 +44,12 @@ class Material:
     escape_gain : (3,) float
         Per channel, how much more of the entering light the object this material fills lets out
         than a flat semi-infinite medium (`mesh.escape_gain`): the profile's values are scaled by
-        it. 1 for a material on its own; the bake sets it per mesh for the ``montecarlo`` profile.
+        it. 1 for a material on its own; the bake sets it per mesh for the ``montecarlo`` profile
+        to the share that leaves in front of the light it entered from.
+    back_gain : (3,) float
+        Per channel, the factor on what a receiver gathers from lights behind its tangent plane,
+        so that the object lets through what its random walk does (`core.back_share`). 1 for a
+        material on its own; set with `escape_gain`.
     """
 
     name: str
@@ -53,6 +58,7 @@ class Material:
     eta: float
     profile: str = DEFAULT_PROFILE
     escape_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    back_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
         s = _rgb(self.sigma_s_prime, "sigma_s_prime", self.name)
@@ -62,10 +68,11 @@ class Material:
         if not (isinstance(self.eta, (int, float)) and math.isfinite(self.eta)) or self.eta < 1.0:
             raise MaterialError(f"material {self.name!r}: eta must be a finite number >= 1, got {self.eta!r}")
         object.__setattr__(self, "eta", float(self.eta))
-        gain = _rgb(self.escape_gain, "escape_gain", self.name)
-        if min(gain) <= 0.0:
-            raise MaterialError(f"material {self.name!r}: escape_gain must be > 0, got {list(gain)}")
-        object.__setattr__(self, "escape_gain", gain)
+        for field in ("escape_gain", "back_gain"):
+            gain = _rgb(getattr(self, field), field, self.name)
+            if min(gain) <= 0.0:
+                raise MaterialError(f"material {self.name!r}: {field} must be > 0, got {list(gain)}")
+            object.__setattr__(self, field, gain)
         if self.profile not in PROFILE_MODELS:
             raise MaterialError(f"material {self.name!r}: profile must be one of {', '.join(PROFILE_MODELS)}, "
                                 f"got {self.profile!r}")
@@ -79,6 +86,11 @@ class Material:
             raise MaterialError(
                 f"material {self.name!r}: sigma_s_prime + sigma_a must be > 0 in every channel"
             )
+
+    @property
+    def half_space(self) -> "Material":
+        """This material without its object's gains: the flat semi-infinite medium's profile."""
+        return replace(self, escape_gain=(1.0, 1.0, 1.0), back_gain=(1.0, 1.0, 1.0))
 
     @property
     def s(self) -> np.ndarray:
@@ -122,7 +134,8 @@ class Material:
         profile existed, by the classical dipole."""
         return Material(str(data["name"]), tuple(float(v) for v in data["sigma_s_prime"]),
                         tuple(float(v) for v in data["sigma_a"]), float(data["eta"]), str(data.get("profile", "dipole")),
-                        tuple(float(v) for v in data.get("escape_gain", (1.0, 1.0, 1.0))))
+                        tuple(float(v) for v in data.get("escape_gain", (1.0, 1.0, 1.0))),
+                        tuple(float(v) for v in data.get("back_gain", (1.0, 1.0, 1.0))))
 
     def to_json(self) -> dict:
         out = {
@@ -132,8 +145,9 @@ class Material:
             "eta": self.eta,
             "profile": self.profile,
         }
-        if self.escape_gain != (1.0, 1.0, 1.0):  # records of a material on its own stay as they were
-            out["escape_gain"] = list(self.escape_gain)
+        for field in ("escape_gain", "back_gain"):  # records of a material on its own stay as they were
+            if getattr(self, field) != (1.0, 1.0, 1.0):
+                out[field] = list(getattr(self, field))
         return out
 
 

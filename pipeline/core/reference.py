@@ -87,6 +87,19 @@ def reference_scattering(surface: Surface, mm_per_unit: float, material: Materia
     instead, in float64 at separation 3 (~1e-3 of q from the exact sum), for meshes where the
     exact sum would take hours; the near field and energy limit are the same.
     """
+    scattered = _scattering(surface, mm_per_unit, material, light, energy_dropped, clustered)
+    if material.back_gain == (1.0, 1.0, 1.0):
+        return scattered
+    # light from behind a vertex's tangent plane crossed the object (core.back_share)
+    towards = (np.broadcast_to(np.asarray(light.direction), surface.positions.shape) if light.kind == "directional"
+               else np.asarray(light.position, dtype=np.float64) - surface.positions)
+    behind = np.einsum("ij,ij->i", surface.normals, towards) < 0.0
+    return scattered * np.where(behind[None, :], np.asarray(material.back_gain)[:, None], 1.0)
+
+
+def _scattering(surface: Surface, mm_per_unit: float, material: Material, light: Light, energy_dropped: float,
+                clustered: bool) -> np.ndarray:
+    """`reference_scattering` before the back gain."""
     p = profile_for(material)
     x = surface.positions * mm_per_unit
     if clustered:

@@ -63,13 +63,18 @@ LPV_MAX_RESOLUTION = 128
 #: `benchmarks/bench_fidelity.py`, figures in docs/fidelity.md), said with the choice: the pilot
 #: checks a technique against our own profile, which cannot show these.
 PHYSICS_LIMITS = {
-    "prt": "against physics prt beats best-fit Lambert on compact objects front- and back-lit, but sends "
-           "too little light through thin parts (docs/fidelity.md)",
+    "prt": "against physics prt beats best-fit Lambert on every bundled sample front- and back-lit but "
+           "the 2 mm skin1 slab back-lit (docs/fidelity.md)",
     "screen": "against physics screen misses light through parts the camera cannot see: back-lit it loses "
               "to best-fit Lambert (docs/fidelity.md)",
     "lpv": "against physics lpv is measured homogeneous only, and back-lit loses to best-fit Lambert there "
            "(docs/fidelity.md)",
 }
+#: Parts thinner than this many reduced mean free paths 1/σ'_t are crossed in a few scatterings:
+#: how much gets through depends on the directions of light and view, which no diffusion profile
+#: models (the 2 mm skin1 slab is 1.5-3 free paths thick: every technique loses to best-fit
+#: Lambert there, docs/fidelity.md). The plan says so with any technique it chooses.
+FEW_FREE_PATHS = 3.0
 
 
 @dataclass(frozen=True)
@@ -90,7 +95,8 @@ class PlanEntry:
         One line per decision.
     measures : dict
         What the rules read: ``diagonal_mm``, ``median_thickness_mm`` (area-weighted), ``diffusion_mm`` (per
-        channel, 1/σ_tr), ``median_radius_mm`` (the widest channel's), ``texel_mm``.
+        channel, 1/σ_tr), ``median_radius_mm`` (the widest channel's), ``texel_mm``, ``free_path_mm``
+        (the longest channel's 1/σ'_t).
     pilot : dict
         With a budget (`piloted`): ``budget``, ``vertices`` (the subsample's), ``reference``,
         ``candidates`` (``label``, ``technique``, ``params``), ``rows`` (`plan_pilot.Pilot`),
@@ -354,8 +360,16 @@ def decide(asset: str, mesh: str, name: str, material, deforming: bool, options:
                 "diffusion_mm": [float(min(d, 1e12)) for d in diffusion], "median_radius_mm": radius,
                 "texel_mm": texel}
 
+    free_path = float(np.max(1.0 / material.sigma_t_prime))
+    measures["free_path_mm"] = free_path
+    crossed = (f"; the median thickness {thickness_mm:.3g} mm is under {FEW_FREE_PATHS:g} reduced mean free paths "
+               f"({FEW_FREE_PATHS:g} x {free_path:.3g} mm): light crosses it in a few scatterings, which diffusion does "
+               f"not model, so against physics every technique may lose to best-fit Lambert (docs/fidelity.md)"
+               if thickness_mm < FEW_FREE_PATHS * free_path else "")
+
     def entry(techniques, reason, extra=None):
-        limits = "".join(f"; {PHYSICS_LIMITS[t]}" for t in techniques)
+        limits = "".join(f"; {PHYSICS_LIMITS[t]}" for t in techniques if t in PHYSICS_LIMITS)
+        limits += crossed if techniques else ""
         return PlanEntry(asset, mesh, name, tuple(techniques), extra or {}, (reason + limits,), measures)
 
     if radius < texel:

@@ -33,7 +33,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -474,7 +474,7 @@ def verify_volpath(path: str | os.PathLike, technique: str = "prt", light_dir=DE
         visible = direction_visibility(surface.positions, surface.faces, surface.normals, local)[weld]
         base = dict(positions=prim.positions, normals=prim.normals, faces=prim.faces, model=world, eta=material.eta)
         # plain Lambert is the half-space's R_tot: the escape gain is the profile techniques' (docs/fidelity.md)
-        half_space = replace(material, escape_gain=(1.0, 1.0, 1.0))
+        half_space = material.half_space
         albedo = albedos.setdefault(material.name, total_reflectance(profile_for(half_space)))
         # Here lambert_q is the plain Lambert radiance of the profile's total reflectance, not verify's
         # grey cosine: spectral's runtime is the plain Lambert shader, which a viewer draws with

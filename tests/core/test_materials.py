@@ -90,6 +90,10 @@ def test_escape_gain_travels_with_the_material_record():
     gained = replace(m, escape_gain=(1.3, 1.2, 1.1))
     assert Material.from_json(json.loads(json.dumps(gained.to_json()))) == gained
     assert Material.from_json(m.to_json()).escape_gain == (1.0, 1.0, 1.0)
-    for bad in ((0.0, 1.0, 1.0), (float("nan"), 1.0, 1.0), (1.0, 1.0)):
-        with pytest.raises(MaterialError, match="escape_gain"):
-            replace(m, escape_gain=bad)
+    both = replace(gained, back_gain=(3.0, 5.0, 12.0))
+    assert Material.from_json(json.loads(json.dumps(both.to_json()))) == both
+    assert both.half_space == m and "back_gain" not in m.to_json()
+    for field in ("escape_gain", "back_gain"):
+        for bad in ((0.0, 1.0, 1.0), (float("nan"), 1.0, 1.0), (1.0, 1.0)):
+            with pytest.raises(MaterialError, match=field):
+                replace(m, **{field: bad})

@@ -48,8 +48,14 @@ def test_a_thin_leaf_needs_a_global_technique_and_a_thick_ball_a_local_one(tmp_p
                            BAKE_DEFAULTS.merged({"material": "skin1", "scale_mm": 100.0})))
     assert ball.techniques == ("screen",) and "thick and local" in ball.reasons[0]
     # each choice says what it is known to miss against physics (docs/fidelity.md), and only its own
-    assert leaf.reasons[0].endswith(f"; prt; {PHYSICS_LIMITS['prt']}") and "screen misses" not in leaf.reasons[0]
+    assert f"; prt; {PHYSICS_LIMITS['prt']}; " in leaf.reasons[0] and "screen misses" not in leaf.reasons[0]
     assert ball.reasons[0].endswith(f"; screen, nothing per vertex; {PHYSICS_LIMITS['screen']}")
+    # 1 mm of skin1 is under 3 reduced mean free paths (red: 1/σ'_t = 1.3 mm): crossed in a few
+    # scatterings, which no technique models; 200 mm is not
+    np.testing.assert_allclose(leaf.measures["free_path_mm"], 1.0 / (0.74 + 0.032), rtol=1e-6)
+    assert leaf.reasons[0].endswith("which diffusion does not model, so against physics every technique may lose to "
+                                    "best-fit Lambert (docs/fidelity.md)")
+    assert "mean free paths" not in ball.reasons[0]
     np.testing.assert_allclose(ball.measures["median_thickness_mm"], 200.0, rtol=0.02)  # a diameter
     # measured: prt 0.0081 against Lambert's 0.0909 on the leaf's 26 vertices, screen 0.0041 against 0.0151
     for entry, technique, vertices in ((leaf, "prt", 26), (ball, "screen", 642)):
@@ -183,7 +189,7 @@ def test_bake_auto_runs_what_the_plan_chose_and_reports_it(tmp_path, capsys):
     mesh_file(src, "ball.obj", trimesh.creation.icosphere(subdivisions=3, radius=1.0))  # 200 mm across
     out = tmp_path / "out"
     assert main(["bake", str(src), "-o", str(out), "--scale-mm", "100", "--material", "skin1",
-                 "--techniques", "auto", "--prt-directions", "16", "--no-validate", "-q"]) == 0
+                 "--techniques", "auto", "--prt-directions", "48", "--no-validate", "-q"]) == 0
     leaf = json.loads((out / "leaf.report.json").read_text())
     ball = json.loads((out / "ball.report.json").read_text())
     assert [e["techniques"] for e in leaf["plan"]] == [["prt"]] and [e["techniques"] for e in ball["plan"]] == [["screen"]]

@@ -40,7 +40,7 @@ __all__ = ["MODES", "WEIGHTS", "TABLES", "WEIGHT_BITS", "PRT_COMPRESS_DEFAULTS",
 
 MODES = ("refs+sh", "sh", "lloyd")
 WEIGHTS = ("barycentric", "least_squares", "best_fit")
-TABLES = ("shared", "rgb")
+TABLES = ("auto", "shared", "rgb")
 WEIGHT_BITS = (8, 16)
 #: Reference triangles an 8-bit-weight vertex can address (16 bits of its attribute).
 COMPACT_TRIANGLES = 65536
@@ -49,6 +49,11 @@ LUT_LEVELS = 256
 #: Alternations of per-channel levels and colours in `shared_tables` (the first gives nearly all
 #: the gain: benchmarks/README.md#prt-compression).
 LUT_REFITS = 2
+#: ``tables="auto"``: RGB tables where shared ones, fitted to a sample of vertices, miss a channel
+#: by more than this share of its RMS over what RGB tables miss (their quantisation).
+SHARED_TABLES_ERROR = 0.02
+#: Vertices that sample.
+TABLES_SAMPLE = 512
 #: Candidate int8 ranges per Δq coefficient for ``dq_percentile=None``: the largest |coefficient|
 #: times 2^(-i/4), i = 0..24 (down to 1/64 of it).
 _SCALE_STEPS = 2.0 ** (-np.arange(25) / 4.0)
@@ -88,9 +93,11 @@ class PrtCompressOptions:
     sh_method : str
         ``"lsq"`` or ``"quadrature"`` projection of Δq (see `sh.sh_fit_matrix`).
     tables : str
-        Reference tables (``refs+sh``): ``"rgb"`` (the paper: K codes per channel) or ``"shared"``
+        Reference tables (``refs+sh``): ``"rgb"`` (the paper: K codes per channel), ``"shared"``
         (K codes per reference point for all channels, a level per channel for each code, times
-        the point's RGB colour; see `shared_tables`). ``lloyd`` always stores RGB.
+        the point's RGB colour; see `shared_tables`) or ``"auto"``: shared unless the channels'
+        directional shapes differ more than one shape can follow (`resolve_tables`) and RGB tables
+        fit `byte_budget`. ``lloyd`` always stores RGB.
     detail_order : int
         With shared tables, SH order of each reference point's detail term (`detail_tables`;
         order² int8 coefficients and an int8 RGB colour per point, 0 for none). One shape per
@@ -117,7 +124,7 @@ class PrtCompressOptions:
     reference_count: int | None = None
     byte_budget: float | None = None
     sh_method: str = "lsq"
-    tables: str = "shared"
+    tables: str = "auto"
     refine: float = 0.6
     weight_bits: int = 8
     reference_floor: int = 256
@@ -198,8 +205,9 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
     if not (np.isfinite(eta) and eta > 0):
         raise ValueError(f"prt compress: eta must be positive and finite, got {eta}")
     order = 0 if options.mode == "lloyd" else options.sh_order
+    tables = resolve_tables(q, options.tables)[0] if options.mode == "refs+sh" else "rgb"
     # A detail order the direction count supports (tiny K would leave the fit underdetermined).
-    detail_order = min(options.detail_order, isqrt(k)) if options.mode == "refs+sh" and options.tables == "shared" else 0
+    detail_order = min(options.detail_order, isqrt(k)) if tables == "shared" else 0
     detail = (np.zeros((0, 0), dtype=np.int8), np.zeros((0, 3), dtype=np.int8), np.zeros(0, dtype=np.float32))
     if order * order > k:
         raise ValueError(f"prt compress: sh_order {order} needs at least {order * order} directions, got {k}; "
@@ -221,8 +229,16 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
             weights = np.tile([1.0, 0.0, 0.0], (n, 1))
         else:
             if options.byte_budget is not None:
-                count = budget_reference_count(options.byte_budget, n, directions, order, options.tables,
-                                               options.weight_bits, detail_order)
+                try:
+                    count = budget_reference_count(options.byte_budget, n, directions, order, tables,
+                                                   options.weight_bits, detail_order)
+                except ValueError:
+                    if not (options.tables == "auto" and tables == "rgb"):
+                        raise
+                    tables = "shared"  # the budget first: RGB tables where they fit in it
+                    detail_order = min(options.detail_order, isqrt(k))
+                    count = budget_reference_count(options.byte_budget, n, directions, order, tables,
+                                                   options.weight_bits, detail_order)
             else:
                 count = options.reference_count or max(3, options.reference_floor,
                                                         int(round(options.reference_fraction * n)))
@@ -233,7 +249,7 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
             ref_vertices, ref_triangles, vertex_triangle = refs.ref_vertices, refs.triangles, refs.vertex_triangle
             weights = refs.weights
         at_refs = q[:, ref_vertices].astype(np.float64)
-        if options.mode == "refs+sh" and options.tables == "shared":
+        if tables == "shared":
             ref_codes, lut, ref_scale = shared_tables(at_refs)
         else:
             ref_codes, lut, ref_scale = rgb_tables(at_refs)
@@ -308,7 +324,8 @@ def budget_reference_count(budget: float, n: int, directions: DirectionSet, sh_o
     directions : DirectionSet
     sh_order : int
     tables : str
-        ``"shared"`` or ``"rgb"`` (see `PrtCompressOptions`).
+        ``"shared"`` or ``"rgb"``; ``"auto"`` (see `PrtCompressOptions`) counts as shared, the
+        cheaper: `compress_prt` falls back to shared tables where RGB ones do not fit the budget.
     weight_bits : int
     detail_order : int
         Of the shared tables' detail terms (order² + 3 bytes per point, order² scales).
@@ -318,7 +335,7 @@ def budget_reference_count(budget: float, n: int, directions: DirectionSet, sh_o
     int
         At least 3; ValueError when even 3 reference points do not fit.
     """
-    channels = 1 if tables == "shared" else 3
+    channels = 3 if tables == "rgb" else 1
     k, c = len(directions.directions), sh_order * sh_order
     detail = detail_order * detail_order if channels == 1 else 0
     # codes, colour, uint16 triangles, detail codes and colour
@@ -480,3 +497,30 @@ def _stored_scale(scale: np.ndarray) -> np.ndarray:
 def encode_int8(coeffs: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """(n, 3, C) int8 codes round(127 · coeffs / scale), clipped to ±127."""
     return np.round(np.clip(coeffs / scale.astype(np.float64), -1.0, 1.0) * 127.0).astype(np.int8)
+
+
+def resolve_tables(q: np.ndarray, tables: str, seed: int = 0) -> tuple[str, np.ndarray]:
+    """The reference tables ``tables="auto"`` stands for on `q` (3, n, K), and the shared tables'
+    excess error per channel that chose them ((3,) float64; zeros when `tables` was given).
+
+    Shared tables hold one directional shape per reference point for all channels; they are a
+    third of the bytes and as good where the channels' shapes differ only in how far they blur.
+    Where an object lets different shares of each channel through from behind
+    (`Material.back_gain`: a thin skin1 part lets blue through 4-5 x more than red, relative to the
+    profile) the shapes differ in kind and one shape per point cannot follow them (a 1 mm skin1
+    leaf: object RMSE 0.089 against the reference with shared tables, 0.019 with RGB; best-fit
+    Lambert 0.038). So both are fitted to `TABLES_SAMPLE` vertices' tables and RGB is chosen when
+    the shared ones miss some channel by `SHARED_TABLES_ERROR` of its RMS more.
+    """
+    if tables != "auto":
+        return tables, np.zeros(3)
+    n = q.shape[1]
+    sample = np.sort(np.random.default_rng(seed).choice(n, min(n, TABLES_SAMPLE), replace=False))
+    at = np.asarray(q[:, sample], dtype=np.float64)
+    size = np.sqrt(np.mean(at * at, axis=(1, 2)))
+
+    def miss(fitted):
+        return np.sqrt(np.mean((reference_tables(*fitted) - at) ** 2, axis=(1, 2))) / np.maximum(size, 1e-300)
+
+    excess = miss(shared_tables(at)) - miss(rgb_tables(at))
+    return ("rgb" if excess.max() > SHARED_TABLES_ERROR else "shared"), excess

@@ -39,8 +39,9 @@ class PrtOptions:
     reference_fraction: float = option(_D.reference_fraction, "prt: reference points per vertex (default {default})")
     sh_order: int = option(_D.sh_order, "prt: SH order of Δq (default {default})")
     weights: str = option(_D.weights, "prt: reference weights (default {default})", choices=WEIGHTS)
-    tables: str = option(_D.tables, "prt: reference tables, one per channel or one shared by the channels "
-                                    "(default {default})", choices=TABLES)
+    tables: str = option(_D.tables, "prt: reference tables, one per channel (rgb), one shared by the channels, "
+                                    "or auto: shared unless the channels' directional shapes differ more than "
+                                    "one shape can follow (default {default})", choices=TABLES)
     refine: float = option(_D.refine, "prt: share of the reference points placed where the fit is worst "
                                       "(default {default})")
     weight_bits: int = option(_D.weight_bits, "prt: bits per weight code; 8 packs them with the triangle in 4 bytes "

@@ -73,7 +73,8 @@ def bake_prt(surface: Surface, mm_per_unit: float, material: Material, direction
         "shOrder": prt.sh_order,
         "detailOrder": prt.detail_order,
         "weights": compress.weights,
-        "tables": compress.tables,
+        # what "auto" chose: shared tables carry a colour per reference point
+        "tables": ("shared" if len(prt.ref_scale) else "rgb") if compress.mode == "refs+sh" else compress.tables,
         "refine": compress.refine,
         "weightBits": prt.weight_bits,
         "byteBudget": compress.byte_budget,

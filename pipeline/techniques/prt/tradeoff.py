@@ -113,7 +113,9 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
     configs = [("quantization", PrtCompressOptions(mode="lloyd"))]
     configs += [("sh", PrtCompressOptions(mode="sh", sh_order=n)) for n in orders]
     # The fraction sweep measures fractions: no floor on the reference count.
-    configs += [("reference_points", PrtCompressOptions(reference_fraction=f, sh_order=n, weights=w, reference_floor=0))
+    # shared tables against RGB ones (the default "auto" picks one of them per mesh)
+    configs += [("reference_points", PrtCompressOptions(reference_fraction=f, sh_order=n, weights=w, reference_floor=0,
+                                                        tables="shared"))
                 for f in reference_fractions for n in (0, 2, 3) for w in WEIGHTS]
     configs += [("reference_points", PrtCompressOptions(reference_fraction=f, reference_floor=0, **change))
                 for f in reference_fractions for change in ({"tables": "rgb"}, {"refine": 0.0})]
@@ -126,7 +128,7 @@ def prt_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material
         rows.append({"sweep": sweep, "mode": options.mode, "k": k, "sh_order": prt.sh_order,
                      "reference_fraction": options.reference_fraction if options.mode == "refs+sh" else 0.0,
                      "weights": options.weights if options.mode == "refs+sh" else "",
-                     "tables": options.tables if options.mode == "refs+sh" else "",
+                     "tables": ("shared" if len(prt.ref_scale) else "rgb") if options.mode == "refs+sh" else "",
                      "refine": options.refine if options.mode == "refs+sh" else 0.0,
                      "bytes_per_vertex": bytes_per_vertex(prt)["total"], "seconds": seconds,
                      "rmse_image": rmse_against(target, decoded)})

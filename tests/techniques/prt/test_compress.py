@@ -10,7 +10,13 @@ import trimesh
 from sssbake.pipeline.core.directions import direction_set, interpolation_weights
 from sssbake.pipeline.core.sh import sh_basis, sh_fit_matrix
 from sssbake.pipeline.core.surface import area_weighted_normals
-from sssbake.pipeline.techniques.prt.compress import PrtCompressOptions, compress_prt
+from sssbake.pipeline.techniques.prt.compress import (
+    SHARED_TABLES_ERROR,
+    PrtCompressOptions,
+    budget_reference_count,
+    compress_prt,
+    resolve_tables,
+)
 from sssbake.pipeline.techniques.prt.decode import (
     blend,
     bytes_per_vertex,
@@ -90,7 +96,7 @@ def test_shared_tables_fit_at_least_as_well_as_the_best_rank_one_table(torus):
     # channels whose shapes differ: one a power of another (a wider or narrower lobe), or leaning
     powered = q[1:2] ** np.array([0.8, 1.0, 1.25])[:, None, None]
     mixed = q * (1.0 + 0.2 * np.arange(3)[:, None, None] * ds.directions[None, None, :, 2])
-    options = PrtCompressOptions(reference_fraction=1.0, refine=0.0, detail_order=0)
+    options = PrtCompressOptions(reference_fraction=1.0, refine=0.0, detail_order=0, tables="shared")
     errors = {}
     for name, signal in (("separable", separable), ("powered", powered), ("mixed", mixed)):
         shared = compress_prt(signal, ds, v, f, 1.3, options)
@@ -111,11 +117,44 @@ def test_shared_tables_fit_at_least_as_well_as_the_best_rank_one_table(torus):
     assert rgb.ref_codes.shape[2] == 3 and len(rgb.ref_scale) == 0 and rgb.detail_order == 0
 
 
+def test_auto_tables_share_one_shape_unless_a_channel_gets_its_own_light_from_behind(torus):
+    """`resolve_tables`: channels that differ by a colour (and a little in spread) share a table;
+    a channel with its own back lobe (what `Material.back_gain` does to a thin part) gets RGB
+    tables, and the compressed data follow the choice."""
+    v, f, ds, q = torus
+    options = PrtCompressOptions(reference_fraction=1.0, refine=0.0)
+    assert options.tables == "auto"
+    same = q[1:2] * np.array([1.0, 0.6, 0.3])[:, None, None]
+    assert resolve_tables(same, "auto")[0] == "shared" and len(compress_prt(same, ds, v, f, 1.3, options).ref_scale)
+    # blue 8 x as much from behind each vertex as the others (its lobe below the horizon)
+    normals = trimesh.Trimesh(v, f).vertex_normals
+    behind = (normals @ ds.directions.T < 0.0)[None]
+    lobed = same * np.where(behind, np.array([1.0, 1.0, 8.0])[:, None, None], 1.0)
+    tables, excess = resolve_tables(lobed, "auto")
+    assert tables == "rgb" and excess[2] > SHARED_TABLES_ERROR > excess[0]
+    prt = compress_prt(lobed, ds, v, f, 1.3, options)
+    assert prt.ref_codes.shape[2] == 3 and len(prt.ref_scale) == 0
+    assert resolve_tables(lobed, "shared") == ("shared", pytest.approx(np.zeros(3)))
+    # a byte budget that holds shared tables but not RGB ones: the budget first
+    budgets = np.arange(1.0, 400.0, 0.5)
+
+    def fits(budget, tables):
+        try:
+            return budget_reference_count(budget, len(v), ds, 0, tables, 8) >= 3
+        except ValueError:
+            return False
+
+    tight = next(b for b in budgets if fits(b, "shared"))
+    assert not fits(tight, "rgb") and fits(tight, "auto")
+    squeezed = compress_prt(lobed, ds, v, f, 1.3, replace(options, byte_budget=float(tight)))
+    assert len(squeezed.ref_scale) and bytes_per_vertex(squeezed)["total"] <= tight
+
+
 def test_detail_terms_reach_below_the_rank_one_floor(torus):
     v, f, ds, q = torus
     # channels whose lobes differ smoothly in direction: what one shape per point misses
     mixed = q * (1.0 + 0.4 * np.arange(3)[:, None, None] * ds.directions[None, None, :, 2])
-    options = PrtCompressOptions(reference_fraction=1.0, refine=0.0, detail_order=0)
+    options = PrtCompressOptions(reference_fraction=1.0, refine=0.0, detail_order=0, tables="shared")
     plain = compress_prt(mixed, ds, v, f, 1.3, options)
     errors = []
     for order in (1, 2, 3):

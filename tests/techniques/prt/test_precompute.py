@@ -122,3 +122,25 @@ def test_clustered_reference_follows_the_exact_sum():
     assert err.max() <= 5e-3 * exact.max()
     assert np.sqrt(np.mean(err**2)) <= 2e-3 * np.sqrt(np.mean(exact**2))
     assert err.max() > 0  # it did take the other path
+
+
+def test_back_gain_scales_exactly_the_light_from_behind_each_vertex():
+    """`Material.back_gain` multiplies what a vertex gathers from directions behind its tangent
+    plane, per channel, in the bake and in the reference alike, and nothing else."""
+    from dataclasses import replace
+
+    s = surface_of(*(np.asarray(a) for a in (trimesh.creation.icosphere(subdivisions=2, radius=2.0).vertices,
+                                             trimesh.creation.icosphere(subdivisions=2, radius=2.0).faces)))
+    directions = fibonacci_sphere(12)
+    gain = (2.0, 3.0, 0.5)
+    plain = precompute_prt(s, 1.0, SHORT, directions).q
+    gained = precompute_prt(s, 1.0, replace(SHORT, back_gain=gain), directions).q
+    behind = s.normals @ directions.T < 0.0
+    expected = plain * np.where(behind[None], np.asarray(gain)[:, None, None], 1.0)
+    np.testing.assert_allclose(gained, expected, rtol=1e-6, atol=1e-12)
+    assert np.all(plain[:, behind] > 0)  # the sphere carries light round: the factor has something to act on
+    light = Light(direction=tuple(directions[3]))
+    ref = reference_scattering(s, 1.0, SHORT, light)
+    ref_gained = reference_scattering(s, 1.0, replace(SHORT, back_gain=gain), light)
+    np.testing.assert_allclose(ref_gained, ref * np.where(behind[:, 3][None], np.asarray(gain)[:, None], 1.0),
+                               rtol=1e-12)
