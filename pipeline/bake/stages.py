@@ -17,12 +17,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sssbake.pipeline.bake.cache import StageCache, stage_key
+from sssbake.pipeline.core.back_share import MIN_BEHIND, gathered_shares, object_gains
 from sssbake.pipeline.core.materials import Material
+from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.atlas import Atlas, compute_atlas
 from sssbake.pipeline.mesh.escape_gain import EscapeGain, escape_gain
-from sssbake.pipeline.core.back_share import MIN_BEHIND, gathered_shares, object_gains
-from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.mesh.load import load_scene
 from sssbake.pipeline.mesh.scene import Scene
 from sssbake.pipeline.mesh.thickness import ThicknessResult, bake_thickness
