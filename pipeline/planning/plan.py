@@ -64,7 +64,8 @@ LPV_MAX_RESOLUTION = 128
 #: checks a technique against our own profile, which cannot show these.
 PHYSICS_LIMITS = {
     "prt": "against physics prt beats best-fit Lambert on every bundled sample front- and back-lit but "
-           "the 2 mm skin1 slab back-lit (docs/fidelity.md)",
+           "the 2 mm skin1 slab back-lit; front-lit, objects tens of diffusion lengths across can trail it "
+           "(the marble hand: 0.051 against 0.041) (docs/fidelity.md)",
     "screen": "against physics screen misses light through parts the camera cannot see: back-lit it loses "
               "to best-fit Lambert (docs/fidelity.md)",
     "lpv": "against physics lpv is measured homogeneous only, and back-lit loses to best-fit Lambert there "
