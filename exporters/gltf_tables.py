@@ -16,7 +16,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
-import pygltflib as g
 
 from sssbake.exporters.gltf import (
     ENCODINGS,
@@ -28,6 +27,8 @@ from sssbake.exporters.gltf import (
 )
 from sssbake.pipeline.core.errors import StaleDataError
 from sssbake.pipeline.mesh.baked import SCHEMA_VERSION
+from sssbake.pipeline.mesh.confine import Confinement
+from sssbake.pipeline.mesh.load_gltf import GltfObject, load_buffers, read_gltf_file
 
 SCHEMA_MAJOR = SCHEMA_VERSION.split(".")[0]
 #: The keys of a table reference, all required.
@@ -45,14 +46,20 @@ _TOOLS = (
 _OTHER_FIX = f"bake the asset again, or process the file only with tools that keep the {EXTENSION} extension"
 
 
-def likely_tool(gltf: g.GLTF2) -> tuple[str, str]:
+def likely_tool(gltf: GltfObject) -> tuple[str, str]:
     """Which tool most likely broke a file's sssbake data, from its ``asset.generator``, and what
     to do about it."""
-    generator = (gltf.asset.generator if gltf.asset else None) or ""
+    generator = _generator(gltf)
     for needle, tool, fix in _TOOLS:
         if needle in generator:
             return tool, fix
     return f"a tool that did not keep the {EXTENSION} extension", _OTHER_FIX
+
+
+def _generator(gltf: GltfObject) -> str:
+    """``asset.generator``, or ``""`` where the file has none (or something other than a string)."""
+    generator = gltf.asset.generator if gltf.asset else None
+    return generator if isinstance(generator, str) else ""
 
 
 @dataclass(frozen=True)
@@ -62,25 +69,26 @@ class SssbakeGltf:
     Attributes
     ----------
     path : str
-    gltf : GLTF2
-    blob : bytes
-        The binary chunk.
+    gltf : GltfObject
+        The root object, its properties readable as attributes (`load_gltf.GltfObject`).
+    blob : bytes or memoryview
+        The binary chunk (a .gltf's buffers joined, `load_sssbake_gltf`).
     root : dict or None
         The root's ``SSSBAKE_subsurface`` object; None for a file sssbake never wrote.
     """
 
     path: str
-    gltf: g.GLTF2
-    blob: bytes
+    gltf: GltfObject
+    blob: bytes | memoryview
     root: dict | None
 
     def stale(self, problem: str) -> StaleDataError:
         """`StaleDataError` for `problem`, with the tool that likely caused it."""
-        generator = (self.gltf.asset.generator if self.gltf.asset else None) or ""
+        generator = _generator(self.gltf)
         tool, fix = likely_tool(self.gltf)
         return StaleDataError(self.path, f"{problem}; likely broken by {tool} (asset.generator {generator!r}): {fix}")
 
-    def extension(self, obj: g.Mesh | g.Material) -> dict | None:
+    def extension(self, obj: GltfObject) -> dict | None:
         """`obj`'s ``SSSBAKE_subsurface`` object, or None."""
         ext = (obj.extensions or {}).get(EXTENSION)
         if ext is not None and (self.root is None or not isinstance(ext, dict)):
@@ -92,6 +100,13 @@ class SssbakeGltf:
         (count,), (count, k) or (count, k, k) of the component dtype."""
         index, elements = self.check_table(ref, where)
         return element_array(elements, self.gltf.accessors[index].type)
+
+    def accessor(self, index, where: str) -> GltfObject:
+        """``accessors[index]``; `stale` when `index` (named `where`) is not one of them."""
+        accessors = self.gltf.accessors
+        if not (isinstance(index, int) and not isinstance(index, bool) and 0 <= index < len(accessors)):
+            raise self.stale(f"{where} names accessor {index!r}, not one of the file's {len(accessors)}")
+        return accessors[index]
 
     def check_table(self, ref, where: str) -> tuple[int, np.ndarray]:
         """The accessor a table reference points at, and its elements, checked.
@@ -165,27 +180,40 @@ class SssbakeGltf:
             Undeclared, missing, or with another componentType, normalized flag, type or count.
         """
         where = f"mesh {mesh} primitive {primitive}"
-        declared = {a.get("name"): a for a in self.root.get("attributes", []) if isinstance(a, dict)}
-        if name not in declared or declared[name].get("encoding") not in ENCODINGS:
+        listed = self.root.get("attributes", [])
+        declared = {a["name"]: a.get("encoding") for a in (listed if isinstance(listed, list) else ())
+                    if isinstance(a, dict) and isinstance(a.get("name"), str)}
+        encoding = declared.get(name) if isinstance(name, str) else None
+        if not isinstance(encoding, str) or encoding not in ENCODINGS:
             raise self.stale(f"{where}: attribute {name} is not declared in the root's {EXTENSION}.attributes")
         prim = self.gltf.meshes[mesh].primitives[primitive]
         index = getattr(prim.attributes, name, None)
         if index is None:
             raise self.stale(f"{where} lacks vertex attribute {name}")
-        acc = self.gltf.accessors[index]
-        component, _, normalized = ENCODINGS[declared[name]["encoding"]]
+        acc = self.accessor(index, f"{where}: attribute {name}")
+        component, _, normalized = ENCODINGS[encoding]
         types = (self.extension(self.gltf.meshes[mesh]) or {}).get("attributeTypes", {})
-        n = self.gltf.accessors[prim.attributes.POSITION].count
+        if not isinstance(types, dict):
+            raise self.stale(f"mesh {mesh}: {EXTENSION}.attributeTypes is {types!r}, not an object")
+        n = self.accessor(prim.attributes.POSITION, f"{where}: POSITION").count
         expected = (component, normalized, types.get(name, acc.type), n)
         have = (acc.componentType, bool(acc.normalized), acc.type, acc.count)
         if have != expected:
             raise self.stale(f"{where}: attribute {name} is componentType {have[0]}, normalized {have[1]}, {have[2]} "
                              f"x {have[3]}; declared {expected[0]}, {expected[1]}, {expected[2]} x {n} (POSITION)")
-        return dequantize(element_array(accessor_elements(self.gltf, index, self.blob), acc.type), normalized)
+        try:
+            elements = accessor_elements(self.gltf, index, self.blob)
+        except (ValueError, IndexError, KeyError) as error:
+            raise self.stale(f"{where}: attribute {name} (accessor {index}) is unreadable ({error})") from None
+        return dequantize(element_array(elements, acc.type), normalized)
 
 
 def load_sssbake_gltf(path: str | os.PathLike, required: bool = False) -> SssbakeGltf:
     """Load a .glb (or .gltf) and check its root ``SSSBAKE_subsurface`` object.
+
+    The container and the JSON are read and checked by `load_gltf.read_gltf_file`, the reader every
+    command shares, the buffers by `load_gltf.load_buffers` (each as long as its byteLength; files
+    beside the asset only); several become one blob, each buffer view rebased onto it, as in a GLB.
 
     Parameters
     ----------
@@ -196,22 +224,26 @@ def load_sssbake_gltf(path: str | os.PathLike, required: bool = False) -> Sssbak
 
     Raises
     ------
+    AssetError
+        The file is not glTF that `read_gltf_file` reads (a GLB length field past the file's end,
+        invalid or too deeply nested JSON, ...), or a buffer is missing or shorter than its byteLength.
     StaleDataError
         The file holds schema 1.x data (``extras.sssbake``), data of another major schema version,
         ``_`` vertex attributes with the extension gone (a tool dropped it), or (`required`) no
         sssbake data at all.
     """
     path = os.fspath(path)
-    gltf = g.GLTF2.load(path)
-    if not path.lower().endswith(".glb"):
-        gltf.convert_buffers(g.BufferFormat.BINARYBLOB)  # a .gltf's buffers (files or data URIs) as one blob
-    data = SssbakeGltf(path, gltf, gltf.binary_blob() or b"", None)
+    file = read_gltf_file(path)
+    gltf = file.gltf
+    # each buffer checked against the bytes that hold it (a GLB's BIN chunk, a file, a data: URI)
+    buffers = load_buffers(path, gltf, file.blob, Confinement.for_asset(path), [])
+    data = SssbakeGltf(path, gltf, buffers[0] if len(buffers) == 1 else _one_blob(gltf, buffers), None)
     root = (gltf.extensions or {}).get(EXTENSION)
     if root is None:
         if "sssbake" in (gltf.extras or {}):
             raise StaleDataError(path, "written by sssbake schema 1.x (extras.sssbake); rebake it with this version")
         custom = sorted({name for mesh in gltf.meshes for prim in mesh.primitives
-                         for name, index in vars(prim.attributes).items() if name.startswith("_") and index is not None})
+                         for name in (prim.attributes or {}) if name.startswith("_")})
         if any(name.startswith(("_SSS_", "_THICKNESS")) for name in custom):
             raise data.stale(f"sssbake vertex attributes {custom} without the root's {EXTENSION} object")
         if required:
@@ -222,6 +254,17 @@ def load_sssbake_gltf(path: str | os.PathLike, required: bool = False) -> Sssbak
         raise StaleDataError(path, f"{EXTENSION} schemaVersion {version!r}: this sssbake reads {SCHEMA_MAJOR}.x; "
                                    "rebake it with this version")
     return SssbakeGltf(path, gltf, data.blob, root)
+
+
+def _one_blob(gltf: GltfObject, buffers: tuple[bytes | memoryview, ...]) -> bytes:
+    """`buffers` as one blob, each 4-byte aligned, every buffer view's byteOffset moved onto it and its
+    buffer set to 0: the tables' readers address one blob, as in a GLB."""
+    starts = np.cumsum([0] + [len(b) + -len(b) % 4 for b in buffers])
+    for view in gltf.bufferViews:
+        if isinstance(view.buffer, int) and 0 <= view.buffer < len(buffers):
+            view.byteOffset = int(starts[view.buffer]) + (view.byteOffset or 0)
+            view.buffer = 0
+    return b"".join(bytes(b) + bytes(-len(b) % 4) for b in buffers)
 
 
 def technique_tables(data: SssbakeGltf, owner: str, index: int, technique: str) -> dict | None:

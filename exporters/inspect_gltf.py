@@ -8,10 +8,11 @@ import os
 from pathlib import Path
 
 import numpy as np
-import pygltflib as g
 
 from sssbake.exporters.gltf import COMPONENT_DTYPES, COMPONENT_NAMES, EXTENSION, TYPE_SIZES
 from sssbake.exporters.gltf_tables import SssbakeGltf, load_sssbake_gltf
+from sssbake.pipeline.core.errors import AssetError
+from sssbake.pipeline.mesh.load_gltf import GltfObject
 
 
 def inspect_glb(path: str | os.PathLike) -> dict:
@@ -41,6 +42,9 @@ def inspect_glb(path: str | os.PathLike) -> dict:
 
     Raises
     ------
+    AssetError
+        The file is not glTF sssbake reads (`gltf_tables.load_sssbake_gltf`), or an accessor it
+        summarises is malformed.
     StaleDataError
         Schema 1.x data, or a table or ``_`` attribute that no longer matches its reference.
     """
@@ -56,8 +60,9 @@ def inspect_glb(path: str | os.PathLike) -> dict:
         sssbake = data.extension(mesh) if data.root is not None else None
         prims = []
         for j, prim in enumerate(mesh.primitives):
-            attributes = {k: v for k, v in vars(prim.attributes).items() if v is not None}
-            n = gltf.accessors[attributes["POSITION"]].count if "POSITION" in attributes else 0
+            attributes = dict(prim.attributes or {})
+            where = f"mesh {i} primitive {j}"
+            n = _accessor(data, attributes["POSITION"], f"{where} POSITION").count if "POSITION" in attributes else 0
             total_vertices += n
             custom = {}
             for name, index in sorted(attributes.items()):
@@ -65,7 +70,7 @@ def inspect_glb(path: str | os.PathLike) -> dict:
                     continue
                 if data.root is not None:
                     data.attribute(i, j, name)  # refuses stale attributes
-                info = _accessor_info(gltf, index)
+                info = _accessor_info(data, index, f"{where} {name}")
                 info["bytesPerVertex"] = info["bytes"] / n if n else 0.0
                 custom[name] = info
                 attr_bytes[name] = attr_bytes.get(name, 0) + info["bytes"]
@@ -113,7 +118,7 @@ def _techniques(data: SssbakeGltf, sssbake: dict | None, owner: str) -> dict:
         for key, ref in _references(value, ""):
             where = f"{owner}.extensions.{EXTENSION}.{technique}.{key}"
             index, _ = data.check_table(ref, where)
-            tables[key] = {**_accessor_info(data.gltf, index), "name": ref["name"], "crc32": ref["crc32"]}
+            tables[key] = {**_accessor_info(data, index, where), "name": ref["name"], "crc32": ref["crc32"]}
         if tables:
             out[technique] = {"bytes": sum(t["bytes"] for t in tables.values()), "tables": tables}
     return out
@@ -131,8 +136,27 @@ def _references(value, prefix: str):
             yield from _references(item, f"{prefix}[{i}]")
 
 
-def _accessor_info(gltf: g.GLTF2, index: int) -> dict:
-    acc = gltf.accessors[index]
+def _accessor(data: SssbakeGltf, index, where: str) -> GltfObject:
+    """Accessor `index`, refused in one line unless its index, componentType, type, count and buffer
+    view (with its byteStride) are of the kinds glTF 2.0 gives them: inspect summarises any file."""
+    accessors, views = data.gltf.accessors, data.gltf.bufferViews
+    if not (isinstance(index, int) and 0 <= index < len(accessors)):
+        raise AssetError(data.path, f"{where}: accessor index {index!r} out of range ({len(accessors)} accessors)")
+    acc = accessors[index]
+    view, count = acc.bufferView, acc.count
+    stride = views[view].byteStride if isinstance(view, int) and 0 <= view < len(views) else None
+    if not (isinstance(acc.componentType, int) and acc.componentType in COMPONENT_NAMES
+            and isinstance(acc.type, str) and acc.type in TYPE_SIZES and isinstance(count, int) and count >= 0
+            and (view is None or (isinstance(view, int) and 0 <= view < len(views)))
+            and (stride is None or isinstance(stride, int))):
+        raise AssetError(data.path, f"{where}: accessor {index} is malformed (componentType {acc.componentType!r}, "
+                                    f"type {acc.type!r}, count {count!r}, bufferView {view!r}, byteStride {stride!r})")
+    return acc
+
+
+def _accessor_info(data: SssbakeGltf, index: int, where: str) -> dict:
+    gltf = data.gltf
+    acc = _accessor(data, index, where)
     element = np.dtype(COMPONENT_DTYPES[acc.componentType]).itemsize * TYPE_SIZES[acc.type]
     stride = element
     if acc.bufferView is not None and gltf.bufferViews[acc.bufferView].byteStride:

@@ -6,7 +6,10 @@ Layout of the file (one crate file, plus its thickness textures as PNG files nex
   ``defaultPrim`` = ``/<Root>``, an Xform of kind ``component`` named after the file stem, and
   ``customLayerData.creator`` = ``"sssbake <version>"``;
 - the node hierarchy as Xforms under the root, each with one ``xformOp:transform`` when its matrix
-  is not the identity (the node matrix transposed: USD multiplies row vectors);
+  is not the identity (the node matrix transposed: USD multiplies row vectors), at most
+  `MAX_USD_DEPTH` node levels deep: a node deeper than that is written beside its ancestor at that
+  level (a child of the same Xform), its matrix the product of the matrices from that ancestor
+  down to it, so every node keeps its world transform (up to the rounding of the products' order);
 - each primitive of a node's mesh as a ``UsdGeom.Mesh`` child of the node's Xform (named after the
   mesh, ``<mesh>_<j>`` when it has several primitives; a mesh used by several nodes is written
   under each): points, faceVertexCounts (all 3), faceVertexIndices, normals (vertex
@@ -53,6 +56,7 @@ import json
 import math
 import os
 import re
+import unicodedata
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +73,7 @@ from sssbake.pipeline.mesh.baked import (
     VertexAttribute,
     check_material_references,
 )
-from sssbake.pipeline.mesh.scene import Primitive, SourceMaterial, Texture, TextureRef
+from sssbake.pipeline.mesh.scene import Primitive, Scene, SourceMaterial, Texture, TextureRef
 
 #: Prefix of every sssbake attribute and primvar namespace.
 SSS = "sss:"
@@ -88,6 +92,12 @@ _T = Sdf.ValueTypeNames
 #: Float vector types by component count; Blender's importer keeps float[], float2[], float3[].
 _FLOAT_TYPES = {1: _T.FloatArray, 2: _T.Float2Array, 3: _T.Float3Array, 4: _T.Float4Array}
 _WRAPS = {33071: "clamp", 33648: "mirror", 10497: "repeat"}
+#: Deepest node hierarchy written (levels of node Xforms under the root prim). A prim path holds one
+#: name per level, and usd-core's crate writer spends time growing with the square of a path's depth
+#: on each prim: a 2,000-node chain took 4.4 s to save and an 8,000-node one about 10 minutes, a
+#: 100,000-node chain cut at 64 levels 0.8 s (benchmarks/README.md, "Deep node hierarchies in USD").
+#: Rigs and CAD assemblies nest a few dozen levels; deeper ones keep their world transforms.
+MAX_USD_DEPTH = 64
 
 
 def meters_per_unit(asset: BakedAsset) -> float:
@@ -107,7 +117,15 @@ def meters_per_unit(asset: BakedAsset) -> float:
 
 def thickness_texture_files(asset: BakedAsset, stem: str) -> dict[int, str]:
     """Texture index -> file name (``<stem>.thickness<k>.png``, k in order of first use) of every
-    thickness texture a translucent material uses: what `write_usdc` writes next to the .usdc."""
+    thickness texture a translucent material uses: what `write_usdc` writes next to the .usdc.
+
+    The .usdc references them by name, and a USD asset path holds neither control characters nor
+    bytes that are not UTF-8 (a POSIX file name may): in a `stem` with any, those characters and
+    every ``%`` are written ``%XX``, byte by byte (``a%0Ab`` for ``a`` newline ``b``).
+    """
+    if any(_refused_in_asset_path(c) for c in stem):
+        stem = "".join("".join(f"%{b:02X}" for b in os.fsencode(c)) if c == "%" or _refused_in_asset_path(c) else c
+                       for c in stem)
     out: dict[int, str] = {}
     for m in sorted(asset.scattering):
         ref = asset.scattering[m].fallback.thickness_texture
@@ -116,6 +134,12 @@ def thickness_texture_files(asset: BakedAsset, stem: str) -> dict[int, str]:
             suffix = ".jpg" if image.mime_type == "image/jpeg" else ".png"
             out[ref.texture] = f"{stem}.thickness{len(out)}{suffix}"
     return out
+
+
+def _refused_in_asset_path(c: str) -> bool:
+    # Cc: the C0 and C1 controls and DEL (Sdf.AssetPath refuses them); Cs: a byte that is not UTF-8,
+    # as os.fsdecode's surrogate escape holds it (not UTF-8, so not a USD string)
+    return unicodedata.category(c) in ("Cc", "Cs")
 
 
 def to_stage(asset: BakedAsset, root_name: str = "Root",
@@ -168,42 +192,81 @@ def to_stage(asset: BakedAsset, root_name: str = "Root",
     materials = _materials(stage, root_path.AppendChild(MATERIALS_SCOPE), asset, texture_files or {})
 
     acc = _Accounting()
-    taken = {root_path: {MATERIALS_SCOPE}}
-    stack = [(r, root_path) for r in reversed(scene.roots)]
-    while stack:
-        i, parent = stack.pop()
-        node = scene.nodes[i]
-        path = parent.AppendChild(_unique(_identifier(node.name, f"node{i}"), taken.setdefault(parent, set())))
-        xform = UsdGeom.Xform.Define(stage, path)
-        matrix = np.asarray(node.matrix, dtype=np.float64)
-        check_finite(matrix, f"node {node.name!r} matrix")
-        if not np.array_equal(matrix, np.eye(4)):
-            xform.AddTransformOp().Set(Gf.Matrix4d(matrix.T.tolist()))
-        if node.mesh is not None:
-            mesh = scene.meshes[node.mesh]
-            names = {a.gltf_name: a.usd_name for j in range(len(mesh.primitives))
-                     for a in asset.vertex_attributes.get((node.mesh, j), ())}
-            for j, prim in enumerate(mesh.primitives):
-                name = mesh.name if len(mesh.primitives) == 1 else f"{mesh.name}_{j}"
-                mesh_name = _unique(_identifier(name, f"mesh{node.mesh}_{j}"), taken.setdefault(path, set()))
-                mesh_path = path.AppendChild(mesh_name)
-                where = f"mesh {mesh.name!r} primitive {j}"
-                usd_mesh = _mesh(stage, mesh_path, prim, asset.vertex_attributes.get((node.mesh, j), ()), where, acc)
-                if node.mesh in asset.scale_mm:
-                    scale = finite_number(asset.scale_mm[node.mesh], f"scale_mm of mesh {mesh.name!r}")
-                    attribute = usd_mesh.GetPrim().CreateAttribute(SSS + "scaleMm", Sdf.ValueTypeNames.Double, custom=True)
-                    attribute.Set(scale)
-                if node.mesh in asset.mesh_extras:
-                    extras_json = _extras_json(asset.mesh_extras[node.mesh], usd_mesh.GetPrim(),
-                                               f"mesh {mesh.name!r} extras", names)
-                    _string_attribute(usd_mesh.GetPrim(), SSS + "extras", extras_json)
-                if prim.material is not None:
-                    src = scene.materials[prim.material]
-                    if src.double_sided and prim.material not in asset.scattering:
-                        usd_mesh.CreateDoubleSidedAttr(True)
-                    UsdShade.MaterialBindingAPI.Apply(usd_mesh.GetPrim()).Bind(materials[prim.material])
-        stack.extend((c, path) for c in reversed(node.children))
+    for m, mesh_paths in _node_specs(stage, root_path, scene):
+        mesh = scene.meshes[m]
+        names = {a.gltf_name: a.usd_name for j in range(len(mesh.primitives))
+                 for a in asset.vertex_attributes.get((m, j), ())}
+        for j, (prim, mesh_path) in enumerate(zip(mesh.primitives, mesh_paths)):
+            where = f"mesh {mesh.name!r} primitive {j}"
+            usd_mesh = _mesh(stage, mesh_path, prim, asset.vertex_attributes.get((m, j), ()), where, acc)
+            if m in asset.scale_mm:
+                scale = finite_number(asset.scale_mm[m], f"scale_mm of mesh {mesh.name!r}")
+                attribute = usd_mesh.GetPrim().CreateAttribute(SSS + "scaleMm", Sdf.ValueTypeNames.Double, custom=True)
+                attribute.Set(scale)
+            if m in asset.mesh_extras:
+                extras_json = _extras_json(asset.mesh_extras[m], usd_mesh.GetPrim(), f"mesh {mesh.name!r} extras",
+                                           names)
+                _string_attribute(usd_mesh.GetPrim(), SSS + "extras", extras_json)
+            if prim.material is not None:
+                src = scene.materials[prim.material]
+                if src.double_sided and prim.material not in asset.scattering:
+                    usd_mesh.CreateDoubleSidedAttr(True)
+                UsdShade.MaterialBindingAPI.Apply(usd_mesh.GetPrim()).Bind(materials[prim.material])
     return stage, acc.summary()
+
+
+def _node_specs(stage: Usd.Stage, root_path: Sdf.Path, scene: Scene) -> list[tuple[int, list[Sdf.Path]]]:
+    """Author the node hierarchy under the root prim: an Xform per node (its transform op included,
+    `MAX_USD_DEPTH` applied) and an empty Mesh prim per primitive of its mesh, for `_mesh` to fill.
+
+    Authored as specs in one change block: a prim defined through the Usd API recomposes its
+    parent's children, which made N siblings cost O(N²) (100,000 took 15 minutes).
+
+    Returns
+    -------
+    list of (int, list of Sdf.Path)
+        For each node with a mesh, depth first: the mesh index and the paths of its primitives.
+    """
+    layer = stage.GetRootLayer()
+    taken = {root_path: {MATERIALS_SCOPE: 1}}
+    placed = []
+    with Sdf.ChangeBlock():
+        # (node, parent spec, level, the matrices above it composed when it is written past MAX_USD_DEPTH)
+        stack = [(r, layer.GetPrimAtPath(root_path), 1, None) for r in reversed(scene.roots)]
+        while stack:
+            i, parent, level, above = stack.pop()
+            node = scene.nodes[i]
+            name = _unique(_identifier(node.name, f"node{i}"), taken.setdefault(parent.path, {}))
+            spec = Sdf.PrimSpec(parent, name, Sdf.SpecifierDef, "Xform")
+            matrix = np.asarray(node.matrix, dtype=np.float64)
+            check_finite(matrix, f"node {node.name!r} matrix")
+            if above is not None:
+                matrix = above @ matrix
+                check_finite(matrix, f"node {node.name!r} matrix composed with its ancestors' past level "
+                                     f"{MAX_USD_DEPTH}")
+            if not np.array_equal(matrix, np.eye(4)):
+                _transform_op(spec, matrix)
+            if node.mesh is not None:
+                mesh, mine, mesh_paths = scene.meshes[node.mesh], taken.setdefault(spec.path, {}), []
+                for j in range(len(mesh.primitives)):
+                    prim_name = mesh.name if len(mesh.primitives) == 1 else f"{mesh.name}_{j}"
+                    mesh_name = _unique(_identifier(prim_name, f"mesh{node.mesh}_{j}"), mine)
+                    mesh_paths.append(Sdf.PrimSpec(spec, mesh_name, Sdf.SpecifierDef, "Mesh").path)
+                placed.append((node.mesh, mesh_paths))
+            if level < MAX_USD_DEPTH:
+                stack.extend((c, spec, level + 1, None) for c in reversed(node.children))
+            else:  # the children join this node's parent, with this node's (composed) matrix before their own
+                stack.extend((c, parent, level + 1, matrix) for c in reversed(node.children))
+    return placed
+
+
+def _transform_op(spec: Sdf.PrimSpec, matrix: np.ndarray) -> None:
+    """What ``UsdGeom.Xformable.AddTransformOp().Set`` authors, as specs: ``xformOp:transform`` =
+    `matrix` transposed (USD multiplies row vectors) and ``xformOpOrder``."""
+    op = Sdf.AttributeSpec(spec, "xformOp:transform", _T.Matrix4d)
+    op.default = Gf.Matrix4d(matrix.T.tolist())
+    order = Sdf.AttributeSpec(spec, "xformOpOrder", _T.TokenArray, Sdf.VariabilityUniform)
+    order.default = Vt.TokenArray(["xformOp:transform"])
 
 
 def write_usdc(asset: BakedAsset, path: str | os.PathLike) -> dict:
@@ -228,7 +291,8 @@ def write_usdc(asset: BakedAsset, path: str | os.PathLike) -> dict:
         for texture, name in files.items():
             tmp = stack.enter_context(atomic_path(path.with_name(name)))
             tmp.write_bytes(asset.scene.images[asset.scene.textures[texture].image].data)
-        if not stage.GetRootLayer().Export(str(usdc)):
+        # as bytes: USD takes any POSIX name so, while a str must be UTF-8 (os.fsdecode's escapes are not)
+        if not stage.GetRootLayer().Export(os.fsencode(usdc)):
             raise OSError(f"USD could not write {usdc}")
     textures = [str(path.with_name(name)) for name in files.values()]
     return {"path": str(path), "bytes": path.stat().st_size, "textures": textures, **summary}
@@ -470,10 +534,17 @@ def _materials(stage: Usd.Stage, scope_path: Sdf.Path, asset: BakedAsset,
     if not scene.materials:
         return []
     UsdGeom.Scope.Define(stage, scope_path)
-    taken: set[str] = set()
+    taken: dict[str, int] = {}
+    paths = []
+    with Sdf.ChangeBlock():  # the prims as specs first, then defined: see `_node_specs`
+        parent = stage.GetRootLayer().GetPrimAtPath(scope_path)
+        for m, src in enumerate(scene.materials):
+            spec = Sdf.PrimSpec(parent, _unique(_identifier(src.name, f"material{m}"), taken), Sdf.SpecifierDef,
+                                "Material")
+            Sdf.PrimSpec(spec, SHADER_NAME, Sdf.SpecifierDef, "Shader")
+            paths.append(spec.path)
     out = []
-    for m, src in enumerate(scene.materials):
-        path = scope_path.AppendChild(_unique(_identifier(src.name, f"material{m}"), taken))
+    for m, (src, path) in enumerate(zip(scene.materials, paths)):
         material = UsdShade.Material.Define(stage, path)
         shader = UsdShade.Shader.Define(stage, path.AppendChild(SHADER_NAME))
         shader.CreateIdAttr("UsdPreviewSurface")
@@ -678,13 +749,20 @@ def technique_tables(prim: Usd.Prim, technique: str) -> dict | None:
     Raises
     ------
     StaleDataError
-        A table is missing, or its element count or CRC-32 no longer matches its reference; or the
-        file was written by another major schema (`check_schema`).
+        ``sss:extras`` is not a JSON object; a table reference is malformed, its table missing, or its
+        element count or CRC-32 no longer matches it; or the file was written by another major schema
+        (`check_schema`).
     """
     attr = prim.GetAttribute(SSS + "extras")
     if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdShade.Material)) or not attr:
         return None
-    tables = json.loads(attr.Get()).get(technique)
+    try:
+        extras = json.loads(attr.Get())
+    except (TypeError, ValueError, RecursionError) as e:  # RecursionError: nested past what json parses
+        raise _stale(prim, f"{attr.GetPath()} is not JSON ({type(e).__name__})") from None
+    if not isinstance(extras, dict):
+        raise _stale(prim, f"{attr.GetPath()} is not a JSON object")
+    tables = extras.get(technique)
     if tables is None:
         return None
     check_schema(prim.GetStage())
@@ -696,7 +774,10 @@ def technique_tables(prim: Usd.Prim, technique: str) -> dict | None:
             return {k: resolve(v, f"{what}.{k}") for k, v in value.items()}
         return value
 
-    return resolve(tables, technique)
+    try:
+        return resolve(tables, technique)
+    except RecursionError:  # json parses deeper than this walk goes
+        raise _stale(prim, f"{attr.GetPath()} nests {technique} too deep") from None
 
 
 def technique_data(prim: Usd.Prim, technique: str) -> tuple[dict, dict[str, np.ndarray]] | None:
@@ -746,15 +827,23 @@ def technique_data(prim: Usd.Prim, technique: str) -> tuple[dict, dict[str, np.n
 
 def _read_table(prim: Usd.Prim, ref: dict, what: str) -> np.ndarray:
     """The array a `_table` reference names, checked against its shape and CRC-32."""
-    name = ref["attribute"]
+    name, shape = ref["attribute"], ref.get("shape")
+    if not isinstance(name, str) or not Sdf.Path.IsValidNamespacedIdentifier(name) or not isinstance(shape, list) \
+            or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in shape):
+        raise _stale(prim, f"{prim.GetPath()} table {what} has a malformed reference {str(ref)[:80]}")
     attribute = prim.GetAttribute(name)
     raw = attribute.Get() if attribute else None
     where = f"{prim.GetPath()} table {what} ({name})"
-    if raw is None:
-        raise _stale(prim, f"{where} is missing")
-    values = np.asarray(raw)
-    shape = tuple(int(s) for s in ref["shape"])
-    dtype = np.dtype(str(attribute.GetCustomData().get("dtype", values.dtype.name)))
+    values = None if raw is None else np.asarray(raw)
+    if values is None or values.dtype.kind not in "fiu":
+        raise _stale(prim, f"{where} is missing" if values is None else f"{where} does not hold numbers")
+    declared = str(attribute.GetCustomData().get("dtype", values.dtype.name))
+    try:
+        dtype = np.dtype(declared)
+    except TypeError:
+        dtype = None
+    if dtype is None or dtype.kind not in "fiu":
+        raise _stale(prim, f"{where} has customData dtype {declared!r}, not a number type")
     if values.size != math.prod(shape):
         raise _stale(prim, f"{where} has {values.size} values, its reference says shape {list(shape)}")
     restored = values.astype(dtype).reshape(shape)
@@ -803,12 +892,14 @@ def _identifier(name: str, fallback: str) -> str:
     return "_" + name if name[0].isdigit() else name
 
 
-def _unique(name: str, taken: set[str]) -> str:
-    """`name`, or `name_<k>` with the lowest free k; records the choice in `taken`."""
-    candidate, k = name, 1
+def _unique(name: str, taken: dict[str, int]) -> str:
+    """`name`, or `name_<k>` with the lowest free k; records the choice in `taken` (names taken ->
+    the first k to try for that name next, so that N siblings of one name cost O(N), not O(N²))."""
+    candidate, k = name, taken.get(name, 1)
     while candidate in taken:
         candidate, k = f"{name}_{k}", k + 1
-    taken.add(candidate)
+    taken[name] = k
+    taken.setdefault(candidate, 1)
     return candidate
 
 

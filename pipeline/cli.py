@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 from dataclasses import fields
 from pathlib import Path
@@ -14,6 +15,7 @@ import numpy as np
 from sssbake.pipeline.config import EMPTY_CONFIG, load_config
 from sssbake.pipeline.core.errors import AssetError, SssbakeError, TradeoffError, VerifyError
 from sssbake.pipeline.core.materials import PROFILE_MODELS
+from sssbake.pipeline.mesh.scale import SCALE_MM
 from sssbake.pipeline.options import BAKE_DEFAULTS, BakeOptions
 from sssbake.pipeline.techniques import registry
 
@@ -29,48 +31,72 @@ def _overrides(args) -> dict:
     return overrides
 
 
+def _one_line(text: str) -> str:
+    """`text` printable on one line: a character that is not printable (a newline, a control
+    character) as Python writes it in a string (``\\n``), a byte of a file name that is not UTF-8
+    (os.fsdecode's surrogate escape) as ``\\xNN``: a POSIX file name may hold any of them."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else f"\\x{ord(c) - 0xDC00:02x}" if "\udc80" <= c <= "\udcff"
+                   else repr(c)[1:-1] for c in text)
+
+
 def _bake(args) -> int:
+    from sssbake.pipeline.bake.asset_process import Interrupted, stop_on_signals
     from sssbake.pipeline.bake.batch import OutputError, run_batch
     from sssbake.pipeline.planning.plan import lambert_line
 
     config = load_config(args.config) if args.config else EMPTY_CONFIG
+    # a flag, or a rule with the flags, that no asset could bake with refuses the batch: nothing is written
+    config.check(_overrides(args), args.flags)
     out = Path(args.out)
     cache = None if args.no_cache else (args.cache_dir or str(out / ".sssbake-cache"))
     if args.dask is not None and args.jobs != 1:
         print("error: give --jobs or --dask, not both (--dask local:N runs N local worker processes)", file=sys.stderr)
         return 2
     try:
-        summary = run_batch(
-            [Path(p) for p in args.paths], out, config, _overrides(args), jobs=args.jobs, cache_dir=cache,
-            progress=not args.quiet, dask=args.dask,
-        )
+        with stop_on_signals():  # Ctrl-C, kill, a closed terminal: one line, not a traceback
+            summary = run_batch(
+                [Path(p) for p in args.paths], out, config, _overrides(args), jobs=args.jobs, cache_dir=cache,
+                progress=not args.quiet, dask=args.dask,
+            )
+    except Interrupted as e:
+        for r in e.records or []:
+            if r is not None and r["status"] == "failed":
+                print(f"error: {_one_line(r['error'])}", file=sys.stderr)
+        print(f"error: {_one_line(str(e))}", file=sys.stderr)
+        return 128 + e.signum  # the shell's code for a command ended by that signal
     except OutputError as e:
         # the assets' own failures first (a full disk fails them too), then `main` says why there is no summary
         for r in (e.summary or {}).get("assets", []):
             if r["status"] == "failed":
-                print(f"error: {r['error']}", file=sys.stderr)
+                print(f"error: {_one_line(r['error'])}", file=sys.stderr)
         raise
     except OSError as e:  # an input path that cannot be read
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {_one_line(str(e))}", file=sys.stderr)
         return 2
     for r in summary["assets"]:
         if r["status"] == "failed":
-            print(f"error: {r['error']}", file=sys.stderr)
+            print(f"error: {_one_line(r['error'])}", file=sys.stderr)
+        elif r["status"] == "same-file" and not args.quiet:
+            print(f"{r['status']:>10}  {_one_line(r['asset'])}  (another name of {_one_line(r['same_as'])}, "
+                  "baked once under that name)")
         elif not args.quiet:
-            print(f"{r['status']:>10}  {r['asset']}  ({r['seconds']:.2f} s, {r.get('warnings', 0)} warnings)")
+            print(f"{r['status']:>10}  {_one_line(r['asset'])}  ({r['seconds']:.2f} s, "
+                  f"{r.get('warnings', 0)} warnings)")
     print(
         f"{summary['ok']} baked, {summary['failed']} failed in {summary['seconds']:.1f} s; "
-        f"summary in {out / 'batch.json'}",
+        f"summary in {_one_line(str(out / 'batch.json'))}",
         file=sys.stderr if args.quiet else sys.stdout,
     )
     worse = lambert_line(summary["worse_than_lambert"], "on the pilot's subsample")
     if worse:
-        print(worse, file=sys.stderr if args.quiet else sys.stdout)
+        print(_one_line(worse), file=sys.stderr if args.quiet else sys.stdout)
     if args.report:
         from sssbake.pipeline.verify.html_report import write_report
 
         page = write_report(out, summary, budget_rmse=args.budget_rmse)
-        print(f"report in {page}", file=sys.stderr if args.quiet else sys.stdout)
+        print(f"report in {_one_line(str(page))}", file=sys.stderr if args.quiet else sys.stdout)
     return 1 if summary["failed"] else 0
 
 
@@ -85,22 +111,33 @@ def _plan(args) -> int:
         # plan writes nothing: the output folder only names where a bake would write
         jobs = find_assets([Path(p) for p in args.paths], Path(tempfile.gettempdir()) / "sssbake-plan")
     except FileNotFoundError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {_one_line(str(e))}", file=sys.stderr)
         return 2
     overrides = _overrides(args)
     entries, failed = [], 0
     for job in jobs:
+        if job.problem is not None:  # found unbakeable (a FIFO, a dangling symlink): never opened
+            print(f"error: {_one_line(job.problem)}", file=sys.stderr)
+            failed += 1
+            continue
+        if job.same_as is not None:
+            print(f"note: {_one_line(str(job.path))}: another name of {_one_line(str(job.same_as))}, planned once "
+                  "under that name", file=sys.stderr)
+            continue
         try:
             entries += plan_asset(job.path, config.options_for(job.rel, overrides))
         except (OSError, ValueError, SssbakeError) as e:
-            print(f"error: {job.path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+            # without the path an AssetError starts with: it is named once, and may hold a line break
+            message = str(e).removeprefix(f"{job.path}: ")
+            print(f"error: {_one_line(f'{job.path}: {message.splitlines()[0] if message else type(e).__name__}')}",
+                  file=sys.stderr)
             failed += 1
     if args.json:
         print(json.dumps([e.to_json() for e in entries]))
     else:
         for e in entries:
-            print(f"{e.asset}  {e.mesh} / {e.material}: {', '.join(e.techniques) or 'no SSS data'}  "
-                  f"({'; '.join(e.reasons)})")
+            print(_one_line(f"{e.asset}  {e.mesh} / {e.material}: {', '.join(e.techniques) or 'no SSS data'}  "
+                            f"({'; '.join(e.reasons)})"))
     return 1 if failed else 0
 
 
@@ -137,8 +174,9 @@ def _verify(args) -> int:
     except AssetError as e:  # already "<path>: <problem>"
         print(f"error: {e}", file=sys.stderr)
         return 1
-    except (OSError, ValueError) as e:  # the file's readers and verify raise ValueErrors without its path
-        print(f"error: {args.file}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+    except (OSError, ValueError) as e:  # the file's readers and verify raise ValueErrors, most without its path
+        message = (str(e).splitlines()[0] if str(e) else type(e).__name__).removeprefix(f"{args.file}: ")
+        print(f"error: {_one_line(f'{args.file}: {message}')}", file=sys.stderr)
         return 1
     if args.json:
         print(json.dumps(result))
@@ -205,6 +243,7 @@ def _tradeoff(args) -> int:
             scale = 1000.0 * declared
         else:
             scale = args.scale_mm
+            SCALE_MM.check("--scale-mm", scale)
         result = technique.run_tradeoff(path, scale, material, args.out or path.parent, args)
     except (OSError, ValueError, SssbakeError) as e:
         print(f"error: {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
@@ -308,8 +347,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("-o", "--out", required=True, help="output folder (mirrors the input tree)")
     b.add_argument("--material", help=f"preset name or 'opaque' for unmatched materials (default {BAKE_DEFAULTS.material})")
     b.add_argument("--config", help="TOML batch config (defaults, per-file rules, material rules)")
-    b.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
-    b.add_argument("--atlas-resolution", type=int, help=f"atlas texels per side (default {BAKE_DEFAULTS.atlas_resolution})")
+    b.add_argument("--scale-mm", type=float,
+                   help=f"millimetres per file unit (required for OBJ/PLY/STL{_within('scale_mm')})")
+    b.add_argument("--atlas-resolution", type=int,
+                   help=f"atlas texels per side (default {BAKE_DEFAULTS.atlas_resolution}{_within('atlas_resolution')})")
     b.add_argument("--techniques",
                    help=f"comma-separated techniques to bake besides the fallback: {', '.join(registry.NAMES)}; "
                         "auto: the planner chooses per mesh and material, with a reason in the report; none: "
@@ -323,10 +364,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--jobs", type=_whole_number_at_least_1, default=1, help="assets baked in parallel (default 1)")
     b.add_argument("--asset-timeout", dest="asset_timeout_s", type=float, metavar="SECONDS",
                    help=f"wall time one asset's worker may take before it is killed and the asset fails, 0 for no "
-                        f"limit (default {BAKE_DEFAULTS.asset_timeout_s:g})")
+                        f"limit (default {BAKE_DEFAULTS.asset_timeout_s:g}{_within('asset_timeout_s')})")
     b.add_argument("--asset-memory", dest="asset_memory_gib", type=float, metavar="GIB",
                    help=f"resident memory one asset's worker and its children may hold before they are killed and "
-                        f"the asset fails, 0 for no limit (default {BAKE_DEFAULTS.asset_memory_gib:g})")
+                        f"the asset fails, 0 for no limit (default {BAKE_DEFAULTS.asset_memory_gib:g}"
+                        f"{_within('asset_memory_gib')})")
     b.add_argument("--dask", metavar="SCHEDULER",
                    help="bake each asset as a task on a Dask cluster: its scheduler's address (tcp://host:8786; "
                         "inputs, OUT and the cache folder must be shared with the workers), or local:N for N "
@@ -335,7 +377,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--no-cache", action="store_true", help="recompute every stage")
     b.add_argument("--no-validate", action="store_true", help="skip the glTF and USD validators")
     b.add_argument("-q", "--quiet", action="store_true", help="no progress bar, only errors")
-    b.set_defaults(func=_bake)
+    b.set_defaults(func=_bake, flags=_flags(b))
 
     i = sub.add_parser("inspect", help="show the sssbake data a .glb or .usdc holds, with bytes per vertex")
     i.add_argument("file")
@@ -368,7 +410,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("input", help="a mesh file (the largest mesh is used)")
     t.add_argument("--technique", default="prt", choices=registry.NAMES)
     t.add_argument("--material", default=BAKE_DEFAULTS.material, help="preset name (default marble)")
-    t.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
+    t.add_argument("--scale-mm", type=float,
+                   help=f"millimetres per file unit (required for OBJ/PLY/STL{_within('scale_mm')})")
     _profile_argument(t, BAKE_DEFAULTS.profile)
     for technique in registry.TECHNIQUES:
         technique.add_tradeoff_arguments(t)
@@ -382,7 +425,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("paths", nargs="+", help="files or folders, as for bake")
     pl.add_argument("--config", help="TOML batch config (defaults, per-file rules, material rules)")
     pl.add_argument("--material", help="preset name or 'opaque' for unmatched materials")
-    pl.add_argument("--scale-mm", type=float, help="millimetres per file unit (required for OBJ/PLY/STL)")
+    pl.add_argument("--scale-mm", type=float,
+                    help=f"millimetres per file unit (required for OBJ/PLY/STL{_within('scale_mm')})")
     _profile_argument(pl)
     pl.add_argument("--json", action="store_true", help="print a JSON list: asset, mesh, material, techniques, "
                                                         "params, reasons, measures (and pilot)")
@@ -402,13 +446,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _flags(parser) -> dict[str, str]:
+    """Each option `parser` sets (its destination) -> the flag that sets it, for messages."""
+    return {a.dest: a.option_strings[-1] for a in parser._actions if a.option_strings}
+
+
+def _within(name: str) -> str:
+    """`BakeOptions` field `name`'s range for a flag's help (`core.ranges.Range`), or nothing."""
+    allowed = next(f for f in fields(BakeOptions) if f.name == name).metadata.get("range")
+    return f"; in {allowed.text()}" if allowed is not None else ""
+
+
 def _technique_arguments(parser) -> None:
     """``--<technique>-<field>`` for each registered technique's options (`BakeOptions`' technique
     fields), with the help, choices and kind their dataclass field gives; absent: None."""
     for f in fields(BakeOptions):
         if "technique" not in f.metadata:
             continue
-        flag, text = "--" + f.name.replace("_", "-"), f.metadata["help"].format(default=f.default)
+        flag, text = "--" + f.name.replace("_", "-"), f.metadata["help"].format(default=f.default) + _within(f.name)
         if f.metadata["flag"]:
             # store_true with default None: an absent flag leaves the config's value alone
             parser.add_argument(flag, action="store_true", default=None, help=text)
@@ -453,8 +508,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except SssbakeError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {_one_line(str(e))}", file=sys.stderr)
         return e.exit_code
+    except KeyboardInterrupt:  # Ctrl-C outside a batch's own handling (`_bake`): verify, tradeoff, a start-up
+        print("error: interrupted", file=sys.stderr)
+        return 128 + signal.SIGINT
+    except BrokenPipeError:  # `sssbake presets | head`: the reader has gone, and with it whom to tell
+        # Python's flush of stdout at exit would fail again and print that it did
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
 
 
 if __name__ == "__main__":

@@ -8,11 +8,16 @@ module is first imported gets its fields, flags and checks without a change here
 
 from __future__ import annotations
 
+import json
 import os
+import sys
+import threading
 from dataclasses import Field, asdict, dataclass, field, fields, make_dataclass, replace
 
-from sssbake.pipeline.core.materials import DEFAULT_PROFILE, PROFILE_MODELS
+from sssbake.pipeline.core.materials import DEFAULT_PROFILE, PROFILE_MODELS, MaterialError, material_from_spec
+from sssbake.pipeline.core.ranges import Range, shown
 from sssbake.pipeline.mesh.atlas import RESOLUTION
+from sssbake.pipeline.mesh.scale import SCALE_MM
 from sssbake.pipeline.techniques import registry
 
 OPAQUE = "opaque"
@@ -32,17 +37,35 @@ SUPERVISION = ("asset_timeout_s", "asset_memory_gib")
 #: and a technique that barely beats Lambert there buys nothing for its bytes and frame time.
 LAMBERT_MARGIN = 0.1
 
+# The ranges of the numeric options (`Range`; a technique's own are its ``option(range=...)``):
+# `check_options` refuses a value outside with the range, the ``bake`` flags' help gives it, and
+# docs/ranges.md lists them all with the materials'. Each end keeps clear of where the bake's
+# arithmetic stops being finite (or a wait or a count stops being possible); tests/test_ranges.py
+# bakes at both ends.
+#: Seconds: Python's waits refuse a timeout past `threading.TIMEOUT_MAX` (~292 years on Linux).
+TIMEOUT_S = Range(0.0, float(threading.TIMEOUT_MAX), "Python's waits take no longer timeout", "s",
+                  says=f"a finite number >= 0 and at most {threading.TIMEOUT_MAX:.4g} s (0: no limit)")
+#: GiB: a 64-bit address space holds 2^34 GiB; the limit in bytes stays an exact float64.
+MEMORY_GIB = Range(0.0, 2.0**34, "a 64-bit address space holds 2^34 GiB", "GiB",
+                   says="a finite number >= 0 and at most 2^34 GiB (0: no limit)")
+#: Bytes per vertex: any positive finite number (the planner doubles and halves it, `plan.planned_candidate`).
+BYTES_PER_VERTEX = Range(0.0, sys.float_info.max, "finite", "bytes", low_open=True, says="a positive finite number")
+
+
+def _ranged(default, allowed: Range):
+    return field(default=default, metadata={"range": allowed})
+
 
 # The general fields come in two groups, before and after the techniques', in the order
 # `to_json` has always written them.
 @dataclass(frozen=True)
 class _General:
     material: str | dict = "marble"
-    scale_mm: float | None = None
+    scale_mm: float | None = _ranged(None, SCALE_MM)
     materials: tuple[tuple[str, str | dict], ...] = ()
-    atlas_resolution: int = RESOLUTION
+    atlas_resolution: int = _ranged(RESOLUTION, Range(16, 8192, "the atlas sizes the bake supports", "texels"))
     atlas_padding: int = 4
-    thickness_rays: int = 1
+    thickness_rays: int = _ranged(1, Range(1, 64, "rays per sample", "rays"))
     validate: bool = True
     techniques: tuple[str, ...] = ("auto",)
     profile: str = DEFAULT_PROFILE
@@ -50,12 +73,15 @@ class _General:
 
 @dataclass(frozen=True)
 class _Limits:
-    max_bytes_per_vertex: float | None = None
-    budget_rmse: float | None = None
-    lambert_margin: float = LAMBERT_MARGIN
+    max_bytes_per_vertex: float | None = _ranged(None, BYTES_PER_VERTEX)
+    budget_rmse: float | None = _ranged(None, Range(0.0, 1.0, "an image RMSE", low_open=True, high_open=True,
+                                                    says="an image RMSE in (0, 1)"))
+    lambert_margin: float = _ranged(LAMBERT_MARGIN, Range(-sys.float_info.max, 1.0, "(1 - margin) x Lambert's RMSE "
+                                                          "must be positive and finite", high_open=True,
+                                                          says="a finite number below 1"))
     allow_roots: tuple[str, ...] = ()
-    asset_timeout_s: float = ASSET_TIMEOUT_S
-    asset_memory_gib: float = ASSET_MEMORY_GIB
+    asset_timeout_s: float = _ranged(ASSET_TIMEOUT_S, TIMEOUT_S)
+    asset_memory_gib: float = _ranged(ASSET_MEMORY_GIB, MEMORY_GIB)
 
 
 class _BakeOptions:
@@ -132,6 +158,8 @@ class _BakeOptions:
             overrides = {**overrides, "techniques": parse_techniques(overrides["techniques"])}
         if isinstance(overrides.get("allow_roots"), list):  # TOML arrays
             overrides = {**overrides, "allow_roots": tuple(overrides["allow_roots"])}
+        if isinstance(overrides.get("materials"), dict):  # a TOML table
+            overrides = {**overrides, "materials": tuple(overrides["materials"].items())}
         return replace(self, **overrides)
 
 
@@ -151,6 +179,7 @@ BakeOptions = make_dataclass(
     namespace={"__module__": __name__, "__doc__": _BakeOptions.__doc__},
 )
 BAKE_DEFAULTS = BakeOptions()
+_FIELDS = {f.name: f for f in fields(BakeOptions)}
 
 
 def parse_techniques(value: str | list | tuple) -> tuple[str, ...]:
@@ -166,58 +195,88 @@ def parse_techniques(value: str | list | tuple) -> tuple[str, ...]:
     return names
 
 
-def check_types(o: BakeOptions) -> None:
-    """Raise ValueError naming the first option whose value is not of its declared kind.
+def check_value(name: str, value) -> None:
+    """Raise ValueError naming option `name` when `value` is not of its declared kind or outside its
+    range (its field's ``range``), whatever the other options hold.
 
     TOML and JSON carry ``true`` and ``512.5`` where a number or a whole number is meant; Python
     takes a bool for an int, so without this ``scale_mm = true`` would bake at 1 mm per unit.
     """
-    for f in fields(o):
-        value, kind = getattr(o, f.name), f.type.removesuffix(" | None")
-        if value is None and f.type.endswith(" | None"):
-            continue
-        if kind == "int" and (isinstance(value, bool) or not isinstance(value, int)):
-            raise ValueError(f"{f.name} must be a whole number, got {value!r}")
-        if kind == "float" and (isinstance(value, bool) or not isinstance(value, (int, float))):
-            raise ValueError(f"{f.name} must be a number, got {value!r}")
-        if kind in ("bool", "str") and not isinstance(value, {"bool": bool, "str": str}[kind]):
-            raise ValueError(f"{f.name} must be {'true or false' if kind == 'bool' else 'a string'}, got {value!r}")
+    f = _FIELDS.get(name)
+    if f is None:
+        raise ValueError(f"unknown option {shown(name)}; known: {sorted(_FIELDS)}")
+    kind = f.type.removesuffix(" | None")
+    if value is None and f.type.endswith(" | None"):
+        return
+    if kind == "int" and (isinstance(value, bool) or not isinstance(value, int)):
+        raise ValueError(f"{name} must be a whole number, got {shown(value)}")
+    if kind == "float" and (isinstance(value, bool) or not isinstance(value, (int, float))):
+        raise ValueError(f"{name} must be a number, got {shown(value)}")
+    if kind in ("bool", "str") and not isinstance(value, {"bool": bool, "str": str}[kind]):
+        raise ValueError(f"{name} must be {'true or false' if kind == 'bool' else 'a string'}, got {shown(value)}")
+    if name == "material" and not isinstance(value, (str, dict)):
+        raise ValueError(f"material must be a preset name, 'opaque' or a table, got {shown(value)}")
+    if name == "techniques" and not (isinstance(value, tuple) and all(isinstance(t, str) for t in value)):
+        raise ValueError(f"techniques must be a list of technique names, got {shown(value)}")
+    if name == "materials" and not (isinstance(value, tuple) and all(
+            isinstance(m, tuple) and len(m) == 2 and isinstance(m[0], str) and isinstance(m[1], (str, dict))
+            for m in value)):
+        raise ValueError(f"materials must be a table of name pattern = material, got {shown(value)}")
+    if name == "allow_roots" and not (isinstance(value, tuple) and all(isinstance(r, str) and r for r in value)):
+        raise ValueError(f"allow_roots must be a list of folder paths, got {shown(value)}")
+    if "range" in f.metadata:
+        f.metadata["range"].check(name, value)
 
 
 def check_options(o: BakeOptions) -> None:
     """Raise ValueError with a one-line reason for an impossible setting."""
-    check_types(o)
-    if o.scale_mm is not None and not (0 < o.scale_mm < float("inf")):
-        raise ValueError(f"scale_mm must be a finite number > 0, got {o.scale_mm!r}")
-    if not (16 <= o.atlas_resolution <= 8192):
-        raise ValueError(f"atlas_resolution must be in [16, 8192], got {o.atlas_resolution}")
+    for f in _FIELDS.values():
+        check_value(f.name, getattr(o, f.name))
     if not (0 <= o.atlas_padding <= o.atlas_resolution // 8):
         raise ValueError(f"atlas_padding must be in [0, resolution/8], got {o.atlas_padding}")
-    if not (1 <= o.thickness_rays <= 64):
-        raise ValueError(f"thickness_rays must be in [1, 64], got {o.thickness_rays}")
     if o.profile not in PROFILE_MODELS:
-        raise ValueError(f"profile must be one of {', '.join(PROFILE_MODELS)}, got {o.profile!r}")
+        raise ValueError(f"profile must be one of {', '.join(PROFILE_MODELS)}, got {shown(o.profile)}")
     unknown = sorted(set(o.techniques) - set(TECHNIQUES) - {"auto"})
     if unknown:
-        raise ValueError(f"unknown technique(s) {unknown}; available: {list(TECHNIQUES)}, auto or none")
+        raise ValueError(f"unknown technique(s) {shown(unknown)}; available: {list(TECHNIQUES)}, auto or none")
     if "auto" in o.techniques and len(o.techniques) > 1:
         raise ValueError("techniques: auto plans every technique itself; give it alone")
     for t in registry.TECHNIQUES:
         o.technique_options(t.name).check()
-    if o.max_bytes_per_vertex is not None and not o.max_bytes_per_vertex > 0:
-        raise ValueError(f"max_bytes_per_vertex must be a positive number, got {o.max_bytes_per_vertex!r}")
-    if o.budget_rmse is not None and not (0 < o.budget_rmse < 1):
-        raise ValueError(f"budget_rmse must be an image RMSE in (0, 1), got {o.budget_rmse!r}")
-    if not -float("inf") < o.lambert_margin < 1:
-        raise ValueError(f"lambert_margin must be a finite number below 1, got {o.lambert_margin!r}")
-    for name in SUPERVISION:
-        if not (0 <= getattr(o, name) < float("inf")):
-            raise ValueError(f"{name} must be a finite number >= 0 (0: no limit), got {getattr(o, name)!r}")
-    if not (isinstance(o.allow_roots, tuple) and all(isinstance(r, str) and r for r in o.allow_roots)):
-        raise ValueError(f"allow_roots must be a list of folder paths, got {o.allow_roots!r}")
     missing = [r for r in o.allow_roots if not os.path.isdir(r)]
     if missing:
-        raise ValueError(f"allow_roots: {missing[0]!r} is not a folder")
+        raise ValueError(f"allow_roots: {shown(missing[0])} is not a folder")
     for name in ("spectral_variant", "spectral_basis"):
         if getattr(o, name) and "spectral" not in o.techniques:
             raise ValueError(f"{name} needs the spectral technique (--techniques spectral)")
+    check_material(o.material, "material", o.profile)
+    for pattern, spec in o.materials:
+        check_material(spec, pattern, o.profile)
+
+
+#: `check_material`'s verdicts: a config's rules and a batch's assets name the same few materials,
+#: and an albedo spec costs a root search per channel.
+_MATERIAL_PROBLEMS: dict[tuple, str | None] = {}
+
+
+def check_material(spec, name: str, profile: str) -> None:
+    """Raise ValueError (`material_from_spec`'s one line) when the material `spec` called `name`
+    is impossible under the profile model `profile`; ``"opaque"`` is a material."""
+    if isinstance(spec, str) and spec.lower() == OPAQUE:
+        return
+    try:
+        key = (json.dumps(spec, sort_keys=True), name, profile)
+    except (TypeError, ValueError):  # not JSON (an API caller's value): checked every time
+        key = None
+    if key is not None and key in _MATERIAL_PROBLEMS:
+        problem = _MATERIAL_PROBLEMS[key]
+    else:
+        try:
+            material_from_spec(spec, name, profile)
+            problem = None
+        except MaterialError as e:
+            problem = str(e)
+        if key is not None:
+            _MATERIAL_PROBLEMS[key] = problem
+    if problem is not None:
+        raise ValueError(problem)

@@ -224,3 +224,65 @@ def write_bad_inputs(folder: Path) -> dict[str, str]:
         (folder / name).write_bytes(data)
         expected[name] = needle
     return expected
+
+
+def deep_json_gltf(depth: int) -> str:
+    """A glTF whose ``extras`` nest arrays until the JSON is `depth` levels deep (the root object is level 1)."""
+    return '{"asset": {"version": "2.0"}, "extras": ' + "[" * (depth - 1) + "]" * (depth - 1) + "}"
+
+
+def node_chain_gltf(translations: np.ndarray) -> dict:
+    """The one-mesh glTF of `_gltf` with its mesh at the end of a chain of nodes: node i has node i + 1 as its
+    only child and translation ``translations[i]``; the scene's root is node 0."""
+    doc = _gltf(TRIANGLE, TRIANGLE_FACES)
+    doc["nodes"] = [{"children": [i + 1], "translation": t.tolist()} for i, t in enumerate(translations[:-1])]
+    doc["nodes"].append({"mesh": 0, "translation": translations[-1].tolist()})
+    doc["scenes"] = [{"nodes": [0]}]
+    return doc
+
+
+def bad_node_graphs() -> dict[str, tuple[dict, str]]:
+    """File name -> (glTF with a node graph glTF 2.0 forbids, the message's problem part)."""
+    base = _gltf(TRIANGLE, TRIANGLE_FACES)
+    graphs = {
+        # the cycle 1 -> 2 -> 1 is no scene's: a scene-less file's roots are its parentless nodes
+        "cycle_no_scene.gltf": ({"nodes": [{"mesh": 0}, {"children": [2]}, {"children": [1]}], "scenes": None,
+                                 "scene": None},
+                                "the node graph has a cycle through node 1 (2 nodes)"),
+        "cycle_in_scene.gltf": ({"nodes": [{"mesh": 0, "children": [1]}, {"children": [2]}, {"children": [0]}],
+                                 "scenes": [{"nodes": [0]}]}, "the node graph has a cycle through node 0 (3 nodes)"),
+        "cycle_off_scene.gltf": ({"nodes": [{"mesh": 0}, {"children": [1], "mesh": 0}], "scenes": [{"nodes": [0]}]},
+                                 "the node graph has a cycle through node 1 (1 node)"),
+        "two_parents.gltf": ({"nodes": [{"children": [2]}, {"children": [2]}, {"mesh": 0}]},
+                             "node 2 is the child of more than one node (nodes 0 and 1)"),
+    }
+    out = {}
+    for name, (edits, problem) in graphs.items():
+        doc = {**base, **edits}
+        out[name] = ({k: v for k, v in doc.items() if v is not None}, problem)
+    return out
+
+
+def glb_truncations(data: bytes, steps: int = 48) -> dict[str, bytes]:
+    """Cut-short copies of the GLB `data`: each byte length up to the first chunk's data, then `steps`
+    lengths spread over the rest; each cut as it is (``cut_N``: the header still claims the whole file)
+    and, cut to a multiple of 4 bytes, with the header's and the last chunk's length fields shrunk to
+    what is left (``fixed_N``), so that the chunk, JSON and buffer checks behind the header's are
+    reached too."""
+    out = {}
+    lengths = sorted(set(range(21)) | {round(k * len(data) / steps) for k in range(steps)})
+    for n in lengths:
+        out[f"cut_{n}"] = data[:n]
+        n -= n % 4
+        if n < 20:
+            continue
+        fixed, offset = bytearray(data[:n]), 12
+        while offset + 8 <= n:  # walk the chunks: the one the cut falls in claims what is left of it
+            size = struct.unpack_from("<I", fixed, offset)[0]
+            if offset + 8 + size > n:
+                struct.pack_into("<I", fixed, offset, n - offset - 8)
+                break
+            offset += 8 + size
+        struct.pack_into("<I", fixed, 8, n)
+        out[f"fixed_{n}"] = bytes(fixed)
+    return out

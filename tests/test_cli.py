@@ -1,6 +1,10 @@
 """End to end through the command line: the bundled samples, the bad-input corpus, inspect."""
 
 import json
+import os
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -141,13 +145,15 @@ def test_missing_scale_is_refused_not_guessed(tmp_path, capsys):
     assert not list((tmp_path / "o").glob("sphere.*"))
 
 
-def test_bad_material_is_one_line(tmp_path, capsys):
+def test_bad_material_refuses_the_batch_in_one_line(tmp_path, capsys):
     generate(tmp_path / "s")
     code = main(["bake", str(tmp_path / "s" / "sphere.obj"), "-o", str(tmp_path / "o"), "--scale-mm", "1",
                  "--material", "granite", "-q"])
-    assert code == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert any("sphere.obj" in line and "unknown material preset 'granite'" in line for line in err)
+    assert code == 2  # before any bake: no asset could bake with it
+    assert capsys.readouterr().err == "error: --material: unknown material preset 'granite'; choose one of apple, " \
+                                      "chicken1, chicken2, cream, ketchup, marble, potato, skimmilk, skin1, skin2, " \
+                                      "spectralon, wholemilk\n"
+    assert not (tmp_path / "o").exists()
 
 
 def test_parallel_jobs_match_serial(baked_samples, tmp_path):
@@ -254,19 +260,21 @@ def test_spectral_bake_writes_normals_variant_and_basis(baked_samples, tmp_path)
     np.testing.assert_allclose(np.asarray(primvar.Get()), stored, atol=1e-6)
 
 
-@pytest.mark.parametrize("flags, needle", [
-    (["--techniques", "spectral", "--spectral-eigenpairs", "0"], "spectral: eigenpairs must be"),
-    (["--techniques", "spectral", "--spectral-width-mm", "-1"], "spectral: width_mm must be"),
-    (["--spectral-variant"], "spectral_variant needs the spectral technique"),
+@pytest.mark.parametrize("flags, flag, needle", [
+    (["--techniques", "spectral", "--spectral-eigenpairs", "0"], "--spectral-eigenpairs",
+     "spectral: eigenpairs must be"),
+    (["--techniques", "spectral", "--spectral-width-mm", "-1"], "--spectral-width-mm",
+     "spectral_width_mm must be in [0, 1e+12] mm, got -1.0"),
+    (["--spectral-variant"], "--spectral-variant", "spectral_variant needs the spectral technique"),
 ])
-def test_bad_spectral_options_are_one_line(tmp_path, capsys, flags, needle):
+def test_bad_spectral_options_are_one_line(tmp_path, capsys, flags, flag, needle):
     generate(tmp_path / "s")
     code = main(["bake", str(tmp_path / "s" / "sphere.obj"), "-o", str(tmp_path / "o"), "--scale-mm", "1", "-q",
                  *flags])
-    assert code == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert any("sphere.obj" in line and needle in line for line in err), err
-    assert not list((tmp_path / "o").glob("sphere.*"))
+    assert code == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"error: {flag}: {needle}"), line
+    assert not (tmp_path / "o").exists()
 
 
 def test_screen_bake_exports_the_material_tables(tmp_path):
@@ -302,7 +310,7 @@ def test_screen_is_skipped_when_not_asked(baked_samples, tmp_path):
 def test_none_must_stand_alone(baked_samples, tmp_path, capsys):
     src, _, _ = baked_samples
     assert main(["bake", str(src / "sphere.obj"), "-o", str(tmp_path), "--scale-mm", "1",
-                 "--techniques", "none,prt", "-q"]) == 1
+                 "--techniques", "none,prt", "-q"]) == 2
     assert "none bakes only the fallback; give it alone" in capsys.readouterr().err
 
 
@@ -315,10 +323,10 @@ def test_bad_screen_options_are_one_line(tmp_path, capsys, flags, needle):
     generate(tmp_path / "s")
     code = main(["bake", str(tmp_path / "s" / "sphere.obj"), "-o", str(tmp_path / "o"), "--scale-mm", "1", "-q",
                  "--techniques", "screen", *flags])
-    assert code == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert any("sphere.obj" in line and needle in line for line in err), err
-    assert not list((tmp_path / "o").glob("sphere.*"))
+    assert code == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"error: {flags[0]}: {needle}"), line
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize("jobs", ["-1", "0", "1.5", "two"])
@@ -328,3 +336,15 @@ def test_jobs_must_be_a_whole_number_at_least_one(tmp_path, capsys, jobs):
     assert e.value.code == 2
     assert f"argument --jobs: must be a whole number >= 1, got '{jobs}'" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_reader_gone_before_the_output_gets_no_traceback():
+    """`sssbake presets | head -1`: the pipe's reader has gone (here before the first write, so
+    that the write must fail): the shell's code for SIGPIPE and nothing on stderr."""
+    read, write = os.pipe()
+    proc = subprocess.Popen([sys.executable, "-m", "sssbake.pipeline.cli", "presets"], stdout=write,
+                            stderr=subprocess.PIPE)
+    os.close(read)  # before the child has imported the CLI: its first write meets a closed pipe
+    os.close(write)
+    stderr = proc.communicate()[1].decode()
+    assert proc.returncode == 128 + signal.SIGPIPE and stderr == "", stderr

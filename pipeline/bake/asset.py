@@ -43,6 +43,7 @@ from sssbake.pipeline.bake.stages import (
     thickness_map_stage,
     thickness_stage,
 )
+from sssbake.pipeline.bake.staging import commit, staging
 from sssbake.pipeline.core.errors import AssetError
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.surface import Surface
@@ -62,7 +63,7 @@ from sssbake.pipeline.techniques.registry import TECHNIQUES
 from sssbake.pipeline.techniques.technique import MATERIAL, MESH, Budget, TechniqueBake
 
 # Bump a stage's version when its output for the same input changes (a technique's: its `stage_version`).
-STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 2, "thickness_map": 3, "escape_gain": 2,
+STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 2, "thickness_map": 3, "escape_gain": 3,
                   **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 4}
 
 LINEAR, CLAMP_TO_EDGE = 9729, 33071
@@ -236,10 +237,13 @@ def bake_asset(
     references (its ``dependencies``) still has its recorded digest; a cached scene is served
     likewise only while its files do, and the stages after it are keyed on their digests too.
 
+    The outputs are written all or nothing (`staging`): when this raises, the output paths hold what
+    they held before. Exported files with validation errors of their own fail the bake.
+
     Raises
     ------
     AssetError, MaterialError, ValueError
-        With a one-line message; nothing is left at the output paths.
+        With a one-line message.
     """
     t_start = time.perf_counter()
     path = Path(path)
@@ -254,6 +258,7 @@ def bake_asset(
     runner = StageRunner(cache, trace_memory)
     scene, clean, k_clean = _load(runner, path, digest, options)
     warnings = [*scene.warnings, *clean.warnings]
+    clean, mesh_origin = _without_flat_nodes(clean, warnings)
     mm_per_unit, scale_source = resolve_scale_mm(clean.scene, options.scale_mm)
     assignment = assign_materials(clean.scene, options, mm_per_unit)
     translucent = {i for i, m in assignment.materials.items() if m is not None}
@@ -261,7 +266,7 @@ def bake_asset(
     b = _Baking(runner, options, split, {i: assignment.materials.get(o) for i, o in enumerate(origin)}, mm_per_unit,
                 warnings)
     for mi in range(len(split.meshes)):
-        _bake_mesh(b, mi, clean.surfaces[mi], stage_key(k_clean, "mesh", 0, {"mesh": mi}), path, picks)
+        _bake_mesh(b, mi, clean.surfaces[mi], stage_key(k_clean, "mesh", 0, {"mesh": mesh_origin[mi]}), path, picks)
     _bake_materials(b)
     for t in TECHNIQUES:
         if t.name not in b.used:
@@ -269,8 +274,7 @@ def bake_asset(
                 runner.skip(stage, reason)
             runner.skip(t.name, "the plan chose it for no object (--techniques auto)" if b.auto
                         else f"not requested (--techniques {t.name})")
-    warnings.extend(f"stage cache: {rec.corrupt} damaged {rec.name} entr{'y' if rec.corrupt == 1 else 'ies'} "
-                    "(checksum mismatch or refused contents) deleted and recomputed" for rec in runner.records.values() if rec.corrupt)
+    warnings.extend(runner.warnings)  # the stage cache's: damaged entries, a folder that took no entry
     baked_scene = replace(split, meshes=tuple(b.meshes), images=tuple(b.images), textures=tuple(b.textures))
     extras = {
         "scaleMmPerUnit": mm_per_unit,
@@ -324,13 +328,16 @@ def _extra_outputs(options: BakeOptions) -> dict[str, Callable[[BakedAsset], Bak
 
 def _up_to_date(outputs: tuple[Path, ...], key: str, path: Path, options: BakeOptions) -> dict | None:
     """The old report when every output exists (the .usdc's thickness textures too), its `job_key` is
-    `key` and its dependencies hold."""
+    `key`, its dependencies hold and its outputs have no validation errors of their own (a bake
+    never leaves such outputs, `_write`; an older one did)."""
     if not all(p.exists() for p in outputs):
         return None
     try:
         old = json.loads(outputs[2].read_text())
         # by name beside the .usdc, as it references them: the folder may have moved
         textures = [outputs[1].parent / Path(t).name for t in old["bytes"]["usdc"].get("textures", [])]
+        if _invalid(old.get("validation", {})):
+            return None
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
     if not all(t.is_file() for t in textures):
@@ -348,6 +355,50 @@ def _load(runner: StageRunner, path: Path, digest: str, options: BakeOptions) ->
     k_load = stage_key(digest, "dependencies", STAGE_VERSIONS["load"], dict(scene.dependencies))
     clean, k_clean = runner.run("clean", STAGE_VERSIONS["clean"], k_load, None, clean_scene, scene)
     return scene, clean, k_clean
+
+
+def _without_flat_nodes(clean: CleanScene, warnings: list[str]) -> tuple[CleanScene, list[int]]:
+    """`clean` without the nodes whose world transform is singular (a scale of 0 along some axis),
+    those below them, and the meshes only they place; a warning names each node and mesh left out.
+
+    What such a node places has no volume for light to scatter in: its mesh's millimetres per unit
+    (`scale.instance_scale`) would be 0, and glTF cannot hold its matrix (not decomposable to TRS).
+    Also returns, per mesh left, its index in `clean`, which its stages are keyed on.
+
+    Raises
+    ------
+    AssetError
+        When nodes of scale 0 place every mesh.
+    """
+    scene = clean.scene
+    flat = {i for i, world in scene.world_matrices().items() if np.linalg.det(world[:3, :3]) == 0.0}
+    if not flat:
+        return clean, list(range(len(scene.meshes)))
+    parent = {c: i for i, node in enumerate(scene.nodes) for c in node.children}
+    for i in sorted(flat):
+        if parent.get(i) not in flat:  # the topmost: every node below it is flat too
+            below, stack = -1, [i]
+            while stack:
+                below += 1
+                stack.extend(scene.nodes[stack.pop()].children)
+            warnings.append(f"node {scene.nodes[i].name!r} has scale 0 (a singular transform): what it places has no "
+                            f"volume; left out{f' with the {below} nodes below it' if below else ''}")
+    kept = [i for i in range(len(scene.nodes)) if i not in flat]
+    placed = {scene.nodes[i].mesh for i in kept} - {None}
+    gone = {n.mesh for n in scene.nodes} - {None} - placed
+    meshes = [m for m in range(len(scene.meshes)) if m not in gone]
+    if not meshes:
+        raise AssetError(scene.source, "every mesh is placed by a node of scale 0 (a singular transform): nothing has "
+                                       "volume to bake")
+    warnings.extend(f"mesh {scene.meshes[m].name!r} is placed only by nodes of scale 0; left out" for m in sorted(gone))
+    node_index = {old: new for new, old in enumerate(kept)}
+    mesh_index = {old: new for new, old in enumerate(meshes)}
+    nodes = tuple(replace(scene.nodes[i], mesh=mesh_index.get(scene.nodes[i].mesh),
+                          children=tuple(node_index[c] for c in scene.nodes[i].children if c not in flat))
+                  for i in kept)
+    scene = replace(scene, meshes=tuple(scene.meshes[m] for m in meshes), nodes=nodes,
+                    roots=tuple(node_index[r] for r in scene.roots if r not in flat))
+    return replace(clean, scene=scene, surfaces=tuple(clean.surfaces[m] for m in meshes)), meshes
 
 
 def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path, picks: dict | None) -> None:
@@ -420,9 +471,7 @@ def _with_escape_gain(b: _Baking, surface: Surface, mesh_key: str, material: Mat
         return material
     half_space = material.half_space
     (_, gain, back), _ = b.runner.run("escape_gain", STAGE_VERSIONS["escape_gain"], mesh_key,
-                                      EscapeGainParams(half_space, mesh_mm), escape_gain_stage, surface,
-                                      fresh=lambda found: all(len(g) == 3 and all(np.isfinite(x) and x > 0 for x in g)
-                                                              for g in found[1:]))
+                                      EscapeGainParams(half_space, mesh_mm), escape_gain_stage, surface)
     return replace(material, escape_gain=tuple(float(x) for x in gain), back_gain=tuple(float(x) for x in back))
 
 
@@ -583,23 +632,27 @@ def _materials_block(b: _Baking, assignment: Assignment, origin: list[int]) -> d
 def _write(b: _Baking, asset: BakedAsset, outputs: tuple[Path, ...], extra: dict, head: dict, path: Path,
            t_start: float) -> dict:
     """Export `asset` to `outputs` (`extra`'s variants after the report), validate them and write the
-    report (`head`, then bytes, validation, stages, seconds and warnings); nothing is left at the
-    output paths when this raises."""
-    written: list[Path] = []
-    try:
+    report (`head`, then bytes, validation, stages, seconds and warnings), all in a staging folder
+    (`staging`): moved into place, the report last, only once every file is written and none has
+    validation errors of its own; when this raises, the output paths hold what they held before."""
+    folder = outputs[0].parent
+    with staging(folder) as staged:
+        at = {p: staged / p.name for p in outputs}
         summaries = {}
         with b.runner.timed("export_gltf"):
-            summaries["glb"] = write_glb(asset, outputs[0])
-        written.append(outputs[0])
+            summaries["glb"] = write_glb(asset, at[outputs[0]])
         with b.runner.timed("export_usd"):
-            summaries["usdc"] = write_usdc(asset, outputs[1])
-        written.append(outputs[1])
+            summaries["usdc"] = write_usdc(asset, at[outputs[1]])
+        textures = [Path(t).name for t in summaries["usdc"]["textures"]]
+        summaries["usdc"]["textures"] = [str(folder / t) for t in textures]  # where they are moved
         for (name, make), out in zip(extra.items(), outputs[3:]):
             with b.runner.timed(f"export_{name}"):
-                summaries[f"{name}_glb"] = write_glb(make(asset), out)
-            written.append(out)
-        glbs = {"gltf": outputs[0], **{f"gltf_{name}": out for name, out in zip(extra, outputs[3:])}}
-        validation = _validate(b.runner, glbs, outputs[1], b.options, b.warnings, path, len(b.scene.images))
+                summaries[f"{name}_glb"] = write_glb(make(asset), at[out])
+        glbs = {"gltf": at[outputs[0]], **{f"gltf_{name}": at[out] for name, out in zip(extra, outputs[3:])}}
+        validation = _validate(b.runner, glbs, at[outputs[1]], b.options, b.warnings, path, len(b.scene.images))
+        invalid = _invalid(validation)
+        if invalid:
+            raise AssetError(path, f"exported files are invalid ({invalid.replace(str(staged), str(folder))})")
         report = {
             **head,
             "bytes": {fmt: {k: v for k, v in summary.items() if k != "path"} for fmt, summary in summaries.items()},
@@ -608,13 +661,25 @@ def _write(b: _Baking, asset: BakedAsset, outputs: tuple[Path, ...], extra: dict
             "seconds": round(time.perf_counter() - t_start, 4),
             "warnings": b.warnings,
         }
-        with atomic_path(outputs[2]) as tmp:
+        with atomic_path(at[outputs[2]]) as tmp:
             Path(tmp).write_text(json.dumps(report, indent=1, default=json_default))
-    except BaseException:
-        for p in written:
-            p.unlink(missing_ok=True)
-        raise
+        # the .usdc after the textures it references, the report (what says the set is up to date) last
+        commit(staged, [p.name for p in (outputs[0], *outputs[3:])] + textures + [outputs[1].name, outputs[2].name],
+               folder)
     return report
+
+
+def _invalid(validation: dict) -> str:
+    """What `_validate`'s `validation` finds wrong with the outputs themselves, inherited problems and
+    warnings aside: per format with errors, their count and the first; ``""`` when none has any."""
+    found = []
+    for fmt, v in validation.items():
+        if v.get("errors"):
+            own = [m if isinstance(m, str) else f"{m['code']} at {m['pointer']}: {m['message']}"  # USD's are lines
+                   for m in v["messages"] if isinstance(m, str) or (m["severity"] == "Error" and not m["inherited"])]
+            found.append(f"{fmt}: {v['errors']} error(s)" + (f", first {own[0]}" if own else ""))
+    return "; ".join(found)
+
 
 def _validate(runner: StageRunner, glbs: dict[str, Path], usdc: Path, options: BakeOptions, warnings: list[str],
               source: Path | None = None, copied_images: int = 0) -> dict:

@@ -13,6 +13,8 @@ import contextlib
 import errno
 import json
 import os
+import shutil
+import stat
 import time
 import traceback
 from collections.abc import Iterator
@@ -21,10 +23,12 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from sssbake.exporters.atomic import atomic_path, temporary_target
-from sssbake.pipeline.bake.asset_process import Limits, Task, supervise
+from sssbake.exporters.atomic import atomic_path, is_temporary
+from sssbake.pipeline.bake.asset_process import Interrupted, Limits, Task, supervise
 from sssbake.pipeline.bake.cache import StageCache
 from sssbake.pipeline.bake.cache import temporaries as cache_temporaries
+from sssbake.pipeline.bake.os_errors import os_error_line
+from sssbake.pipeline.bake.staging import is_staging
 from sssbake.pipeline.config import BatchConfig, ConfigError
 from sssbake.pipeline.core.errors import AssetError, SssbakeError
 from sssbake.pipeline.core.materials import MaterialError
@@ -51,78 +55,213 @@ class OutputError(SssbakeError, OSError):
         return self.args[0]
 
 
-# errno values that mean "no room left" (EFBIG: over the file size limit, RLIMIT_FSIZE or the filesystem's)
-_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
-
-
-def os_error_line(path: Path, e: OSError) -> str:
-    """One line for `e` met while working on `path`: the file and the problem, and for a full disk or
-    a folder we may not write the fix; a temporary's name is given as the file it was written for."""
-    if e.errno is None:
-        return f"{path}: {e}"
-    name = e.filename if isinstance(e.filename, str) else None
-    if name is not None and (final := temporary_target(Path(name).name)) is not None:
-        name = str(Path(name).with_name(final))
-    what = f"{name}: {e.strerror}" if name is not None and name != str(path) else e.strerror
-    if e.errno in _FULL:
-        return f"{path}: {what}; free some space or give -o a folder on another disk"
-    if e.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
-        return f"{path}: {what}; give -o a folder you may write"
-    return f"{path}: {what}"
-
-
 @dataclass(frozen=True)
 class Job:
-    """One asset to bake: its path, its path relative to the input root, and where outputs go."""
+    """One asset to bake: its path, its path relative to the input root, and where outputs go;
+    `problem`: the one-line error of an entry found unbakeable (`find_assets`), which fails the job
+    without its file being opened; `same_as`: for another name of a file or folder found before
+    (a symlink, a hard link, a path given twice), that first name, under which it is baked once."""
 
     path: Path
     rel: str
     out_base: Path
+    problem: str | None = None
+    same_as: Path | None = None
 
 
 def find_assets(paths: list[Path], out_dir: Path) -> list[Job]:
-    """Every supported file under `paths` (folders walked recursively), mirrored under `out_dir`.
+    """Every supported file under `paths` (folders walked recursively, `_walk`), mirrored under `out_dir`.
 
-    Files inside `out_dir` and hidden folders are skipped. Two inputs that would share an output
-    name (``a.obj`` and ``a.ply``) keep their extension in it (``a.obj.glb``).
+    Files inside `out_dir` and hidden files and folders are skipped. Two inputs that would share an
+    output name (``a.obj`` and ``a.ply``) keep their extension in it (``a.obj.glb``). Symlinked
+    folders are followed (asset libraries are often linked), each real folder walked once.
+
+    One real file (device and inode) is one job, under the first name found: paths in the order
+    given; in each, names in real folders, then in symlinked folders, then symlinks to files, in
+    sorted order. Another name for it (a symlink, a hard link, a folder given twice) would bake the
+    same bytes again into outputs of their own, or two jobs would write the same outputs at once;
+    it is a job with `Job.same_as` instead, which bakes nothing and says so (so does a second name
+    of a folder: a symlinked folder that holds itself, ``loop -> .``, ends the walk there).
+
+    An entry that cannot be baked is a job with its `Job.problem`: one with a supported extension
+    that is not a regular file (a FIFO, whose open would block; a socket, a device), a symlink to
+    nothing, a file that may not be read; and whatever its name, a symlink loop (``a -> b -> a``), a
+    folder that cannot be listed.
+
+    Raises
+    ------
+    FileNotFoundError
+        A path in `paths` does not exist (not even as a dangling symlink).
     """
     out_dir = out_dir.resolve()
-    found: list[tuple[Path, Path]] = []
+    found: list[tuple[Path, Path, str | None, Path | None]] = []
+    # (st_dev, st_ino) of the folders walked and the files found (`_file`), each with its first name
+    seen: dict[tuple, Path] = {}
     for root in paths:
         root = Path(root)
-        if root.is_file():
-            found.append((root, Path(root.name)))
-            continue
-        if not root.is_dir():
+        if root.is_dir():
+            # the root itself is named when it cannot be listed
+            found += sorted((p, p.relative_to(root) if p != root else Path(root.absolute().name or "root"), *rest)
+                            for p, *rest in _walk(root, str(out_dir), seen))
+        elif os.path.lexists(root):  # a file given by name is baked whatever its extension
+            found += [(root, Path(root.name), *rest) for _, *rest in _found(root, seen)]
+        else:
             raise FileNotFoundError(f"{root}: no such file or folder")
-        for p in sorted(_walk(root)):
-            rel = p.relative_to(root)
-            if (
-                p.is_file()
-                and p.suffix.lower() in SUPPORTED_EXTENSIONS
-                and not any(part.startswith(".") for part in rel.parts)
-                and out_dir not in p.resolve().parents
-            ):
-                found.append((p, rel))
     stems: dict[Path, int] = {}
-    for _, rel in found:
+    for _, rel, _, _ in found:
         stems[rel.with_suffix("")] = stems.get(rel.with_suffix(""), 0) + 1
     jobs = []
-    for p, rel in found:
+    for p, rel, problem, same_as in found:
         base = rel.with_suffix("") if stems[rel.with_suffix("")] == 1 else rel
-        jobs.append(Job(p, rel.as_posix(), out_dir / base))
+        jobs.append(Job(p, rel.as_posix(), out_dir / base, problem, same_as))
     return jobs
 
 
-def _walk(root: Path):
-    """Every file under `root`, following symlinked folders (asset libraries are often linked)."""
-    for folder, dirs, files in os.walk(root, followlinks=True):
-        dirs[:] = [d for d in dirs if not d.startswith(".")]
-        yield from (Path(folder) / f for f in files)
+def _walk(root: Path, out_dir: str, seen: dict[tuple, Path]) -> Iterator[tuple[Path, str | None, Path | None]]:
+    """(path, `Job.problem`, `Job.same_as`) of every entry under `root` that `find_assets` makes a job of.
+
+    Real folders first, depth first, then the symlinked folders found, in order (with the real
+    folders under them, and so on), each real folder once (`seen`, shared across the roots): a link
+    to a folder already walked is not followed, since its files are found under their other name
+    and following it could walk for ever (``loop -> .``); it is named with the folder's first name.
+    A link to a folder above the root that holds it is a symlink loop that leads out of what was given.
+    Symlinks to files come last, so that a file is named by its real name where it has one in the
+    tree. Nothing under the real folder `out_dir` is an input.
+    """
+    stack = [(root, os.path.realpath(root))]  # folders to walk, each with its real path
+    linked: list[tuple[Path, str]] = []  # symlinked folders found, each with the real path of the folder holding it
+    links: list[Path] = []  # symlinks to anything else, found with a supported extension or looping
+    while stack or linked:
+        if not stack:
+            link, holder = linked.pop(0)
+            target = os.path.realpath(link)
+            if _within(holder, target) and not _walked(target, seen):  # above the root: outside what was given
+                yield link, f"{link}: a symlink loop: it points to {target}, a folder that holds it; not followed", None
+                continue
+            stack.append((link, target))
+        folder, real = stack.pop()
+        if _within(real, out_dir):
+            continue
+        try:
+            st = os.stat(folder)
+            if (key := (st.st_dev, st.st_ino)) in seen:
+                yield folder, None, seen[key]
+                continue
+            seen[key] = folder
+            with os.scandir(folder) as listing:
+                entries = sorted(listing, key=lambda e: e.name)
+        except OSError as e:
+            yield folder, f"{folder}: cannot read this folder: {e.strerror}", None
+            continue
+        below = []
+        for entry in entries:
+            path = folder / entry.name
+            if entry.name.startswith("."):
+                continue
+            if _is_dir(entry):
+                if entry.is_symlink():
+                    linked.append((path, real))
+                else:
+                    below.append((path, os.path.join(real, entry.name)))
+            elif entry.is_symlink():
+                if path.suffix.lower() in SUPPORTED_EXTENSIONS or _loops(path):
+                    links.append(path)
+            elif path.suffix.lower() in SUPPORTED_EXTENSIONS:
+                yield from _found(path, seen)
+        stack.extend(reversed(below))  # popped in sorted order
+    for path in links:
+        if not _within(os.path.realpath(path), out_dir):
+            yield from _found(path, seen)
+
+
+def _found(path: Path, seen: dict[tuple, Path]) -> Iterator[tuple[Path, str | None, Path | None]]:
+    """`path`, its problem (`_file`) and the name its file was found under before (None: the first)."""
+    key, problem = _file(path)
+    if key in seen:
+        yield path, None, seen[key]
+    else:
+        seen[key] = path
+        yield path, problem, None
+
+
+def _walked(folder: str, seen: dict[tuple, Path]) -> bool:
+    try:
+        st = os.stat(folder)
+    except OSError:
+        return False
+    return (st.st_dev, st.st_ino) in seen
+
+
+def _is_dir(entry: os.DirEntry) -> bool:
+    try:
+        return entry.is_dir()
+    except OSError:  # a symlink loop, a folder we may not look into: a file entry, whose problem `_file` tells
+        return False
+
+
+def _within(path: str, folder: str) -> bool:
+    """Whether the real path `path` is the real path `folder` or lies under it."""
+    return path == folder or path.startswith(folder.rstrip(os.sep) + os.sep)
+
+
+def _loops(path: Path) -> bool:
+    """Whether the symlink `path` never reaches a file: it leads back to itself (ELOOP)."""
+    try:
+        os.stat(path)
+    except OSError as e:
+        return e.errno == errno.ELOOP
+    return False
+
+
+# What a file that is not a regular one is, by `stat.S_IFMT`.
+_KINDS = {stat.S_IFIFO: "a FIFO", stat.S_IFSOCK: "a socket", stat.S_IFCHR: "a character device",
+          stat.S_IFBLK: "a block device", stat.S_IFDIR: "a folder"}
+
+
+def _file(path: Path) -> tuple[tuple[int, int] | tuple[str], str | None]:
+    """What `find_assets` knows of a file entry without opening it: its key for `find_assets`' seen
+    set (device and inode; the path itself where no file is reached) and its one-line problem, or
+    None when it can be baked."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return (str(path),), f"{path}: a symlink loop ({_chain(path)})"
+        if e.errno in (errno.ENOENT, errno.ENOTDIR) and os.path.islink(path):
+            return (str(path),), f"{path}: a symlink to a missing file ({_chain(path)})"
+        return (str(path),), f"{path}: cannot read: {e.strerror}"
+    key = (st.st_dev, st.st_ino)
+    if not stat.S_ISREG(st.st_mode):
+        return key, f"{path}: not a regular file ({_KINDS.get(stat.S_IFMT(st.st_mode), 'of an unknown kind')})"
+    if not os.access(path, os.R_OK):
+        return key, f"{path}: cannot read: permission denied"
+    return key, None
+
+
+def _chain(path: Path) -> str:
+    """The symlinks from `path` on, as ``a -> b -> a``: each target as written, up to one seen
+    before, a missing one, or 40 (the kernel's limit)."""
+    names, here, visited = [path.name], path, {os.path.abspath(path)}
+    for _ in range(40):
+        try:
+            target = os.readlink(here)
+        except OSError:  # not a link (the end of the chain), or gone
+            break
+        names.append(target)
+        here = here.parent / target
+        if os.path.abspath(here) in visited:
+            break
+        visited.add(os.path.abspath(here))
+    return " -> ".join(names)
 
 
 def run_job(job: Job, config: BatchConfig, overrides: dict, cache_dir: str | None) -> dict:
     """Bake one asset; never raises: failures come back as one-line errors in the record."""
+    if job.problem is not None:
+        return {"asset": str(job.path), "outputs": [], "status": "failed", "error": job.problem, "seconds": 0.0}
+    if job.same_as is not None:
+        return {"asset": str(job.path), "outputs": [], "status": "same-file", "same_as": str(job.same_as),
+                "seconds": 0.0}
     from sssbake.pipeline.bake.asset import bake_asset  # here: a parent that only supervises never needs them
     from sssbake.pipeline.bake.check import bake_within_budget
 
@@ -158,22 +297,18 @@ def _record_result(record: dict, job: Job, result) -> None:
     record["outputs"] = [str(p) for p in result.outputs]
     record["warnings"] = len(result.report.get("warnings", []))
     record["worse_than_lambert"] = worse_than_lambert(result.report)
-    invalid = [
-        f"{fmt}: {v['errors']} validation error(s)"
-        for fmt, v in result.report.get("validation", {}).items()
-        if v.get("errors")
-    ]
-    if invalid:
-        record.update(status="failed", error=f"{job.path}: exported files are invalid ({'; '.join(invalid)}); see the report")
-    else:
-        record["status"] = "up-to-date" if result.up_to_date else "ok"
+    # outputs with validation errors of their own fail the bake and are never left (`asset._write`)
+    record["status"] = "up-to-date" if result.up_to_date else "ok"
 
 
 def up_to_date_record(job: Job, config: BatchConfig, overrides: dict) -> dict | None:
-    """`run_job`'s record for a job whose outputs are up to date, None for any other (a worker
-    bakes it, or reports its error): starting a worker costs seconds, checking milliseconds."""
+    """`run_job`'s record for a job whose outputs are up to date or that `find_assets` found
+    unbakeable, None for any other (a worker bakes it, or reports its error): starting a worker
+    costs seconds, checking milliseconds."""
     from sssbake.pipeline.bake.asset import up_to_date_result
 
+    if job.problem is not None or job.same_as is not None:
+        return run_job(job, config, overrides, None)
     t0 = time.perf_counter()
     try:
         options = config.options_for(job.rel, overrides)
@@ -233,6 +368,10 @@ def run_batch(
         the summary).
     FileNotFoundError
         A path in `paths` does not exist.
+    asset_process.Interrupted
+        Under `asset_process.stop_on_signals`, a stop signal: the workers are killed and cleaned up
+        after, nothing more is written (no ``batch.json``), and it holds the records of the assets
+        done (`Interrupted.records`).
     """
     t0 = time.perf_counter()
     try:
@@ -244,28 +383,35 @@ def run_batch(
     except OSError as e:
         raise OutputError(os_error_line(out_dir, e)) from None
     todo = find_assets(paths, out_dir)
-    with _batch_lock(out_dir, cache_dir) as (removed, start):
-        bar = tqdm(total=len(todo), unit="asset", disable=not progress, leave=False)
-        if dask is not None:
-            from sssbake.pipeline.bake.batch_dask import run_on_dask
+    with _batch_lock(out_dir, cache_dir) as (removed, start), \
+            tqdm(total=len(todo), unit="asset", disable=not progress, leave=False) as bar:
+        records: list[dict | None] = [None] * len(todo)
 
-            records = run_on_dask(todo, config, overrides, cache_dir, dask, on_done=bar.update, since=start)
-        elif not isolate:
-            records = []
-            for job in todo:
-                bar.set_description(job.rel)
-                records.append(run_job(job, config, overrides, cache_dir))
-                bar.update()
-        else:
-            records = [up_to_date_record(job, config, overrides) for job in todo]
-            bar.update(sum(r is not None for r in records))
-            # Largest input first: with a few long assets, starting them last would leave workers idle.
-            order = sorted((i for i, r in enumerate(records) if r is None), key=lambda i: -input_bytes(todo[i].path))
-            done = supervise([task_for(todo[i], config, overrides, cache_dir) for i in order], jobs,
-                             on_done=lambda _i, _record: bar.update())
-            for i, record in zip(order, done):
-                records[i] = record
-        bar.close()
+        def done(i: int, record: dict) -> None:
+            records[i] = record
+            bar.update()
+
+        try:
+            if dask is not None:
+                from sssbake.pipeline.bake.batch_dask import run_on_dask
+
+                run_on_dask(todo, config, overrides, cache_dir, dask, on_done=done, since=start)
+            elif not isolate:
+                for i, job in enumerate(todo):
+                    bar.set_description(job.rel)
+                    done(i, run_job(job, config, overrides, cache_dir))
+            else:
+                for i, job in enumerate(todo):
+                    if (record := up_to_date_record(job, config, overrides)) is not None:
+                        done(i, record)
+                # Largest input first: with a few long assets, starting them last would leave workers idle.
+                order = sorted((i for i, r in enumerate(records) if r is None),
+                               key=lambda i: -input_bytes(todo[i].path))
+                supervise([task_for(todo[i], config, overrides, cache_dir) for i in order], jobs,
+                          on_done=lambda k, record: done(order[k], record))
+        except Interrupted as e:  # the assets done stay done: the caller counts them, a rerun skips them
+            e.records = records
+            raise
         summary = {
             "assets": records,
             "ok": sum(r["status"] in ("ok", "up-to-date") for r in records),
@@ -342,27 +488,39 @@ def _batch_lock(out_dir: Path, cache_dir: str | None) -> Iterator[tuple[int, flo
     batch holds them, or the filesystem has no locks) only those untouched for `STALE_AFTER_S` go.
     The locks are advisory ``flock``s on ``<folder>/.sssbake.lock``, which stays in the folder.
 
-    At the end, a batch alone again sweeps every temporary older than that moment: what its own
-    killed workers left in the stage cache (their output temporaries are gone already,
-    `asset_process`). A folder that cannot be written raises OutputError.
+    At the end, or when it is interrupted, a batch alone again sweeps every temporary older than that
+    moment: what its own killed workers left in the stage cache (their output temporaries are gone
+    already, `asset_process`). A folder that cannot be written raises OutputError.
     """
-    folders = [out_dir] + ([Path(cache_dir)] if cache_dir is not None else [])
+    # each folder with the option that named it, for the fix an error names (the output folder's when both are one)
+    folders = {out_dir.absolute(): "-o"}
+    if cache_dir is not None:
+        folders.setdefault(Path(cache_dir).absolute(), "--cache-dir")
     with contextlib.ExitStack() as stack:
         files = []
-        for folder in dict.fromkeys(f.absolute() for f in folders):
+        for folder, option in folders.items():
             try:
                 folder.mkdir(parents=True, exist_ok=True)
                 files.append(stack.enter_context(open(folder / LOCK_NAME, "a+b")))
             except OSError as e:
-                raise OutputError(os_error_line(folder, e)) from None
+                raise OutputError(os_error_line(folder, e, option)) from None
         start = _now(files[0])
         alone = all(_lock(f, exclusive=True) for f in files)
         removed = sweep_temporaries(out_dir, cache_dir, start if alone else start - STALE_AFTER_S)
         for f in files:
             _lock(f, exclusive=False)  # flock's conversion is not atomic: harmless, nothing of ours exists yet
-        yield removed, start
-        if all(_lock(f, exclusive=True) for f in files):
-            sweep_temporaries(out_dir, cache_dir, _now(files[0]))
+        try:
+            yield removed, start
+        except Interrupted:  # its workers were killed: what they left in the stage cache goes now too
+            _sweep_alone(files, out_dir, cache_dir)
+            raise
+        _sweep_alone(files, out_dir, cache_dir)
+
+
+def _sweep_alone(files: list, out_dir: Path, cache_dir: str | None) -> None:
+    """At a batch's end, sweep every temporary older than now if it is alone again (`files`' locks)."""
+    if all(_lock(f, exclusive=True) for f in files):
+        sweep_temporaries(out_dir, cache_dir, _now(files[0]))
 
 
 def _now(lock_file) -> float:
@@ -388,9 +546,10 @@ def _lock(f, *, exclusive: bool) -> bool:
 def sweep_temporaries(out_dir: Path, cache_dir: str | None, before: float) -> int:
     """Remove sssbake's temporary files under `out_dir` and `cache_dir` last modified before `before`.
 
-    Only our exact names go: `atomic_path`'s (`atomic.temporary_target`, anywhere under `out_dir`)
-    and the stage cache's (`cache.temporaries`). Symlinked folders are not followed. A file that
-    vanishes meanwhile (its writer renamed it) or cannot be removed is skipped.
+    Only our exact names go: `atomic_path`'s (`atomic.is_temporary`, anywhere under `out_dir`), the
+    bakes' staging folders (`staging.is_staging`, whole) and the stage cache's (`cache.temporaries`).
+    Symlinked folders are not followed. A file that vanishes meanwhile (its writer renamed it) or
+    cannot be removed is skipped.
 
     Parameters
     ----------
@@ -404,7 +563,7 @@ def sweep_temporaries(out_dir: Path, cache_dir: str | None, before: float) -> in
     Returns
     -------
     int
-        How many files were removed.
+        How many files (and staging folders) were removed.
     """
     removed = 0
 
@@ -417,10 +576,18 @@ def sweep_temporaries(out_dir: Path, cache_dir: str | None, before: float) -> in
         except OSError:  # gone meanwhile (its writer renamed it), or not ours to remove: cleaning is best effort
             pass
 
-    for folder, _dirs, files in os.walk(out_dir):
+    for folder, dirs, files in os.walk(out_dir):
         for name in files:
-            if temporary_target(name) is not None:
+            if is_temporary(name):
                 drop(Path(folder) / name)
+        for name in [d for d in dirs if is_staging(d)]:  # a bake's staging folder, whole (`bake.staging`)
+            dirs.remove(name)
+            try:
+                if (Path(folder) / name).lstat().st_mtime < before:
+                    shutil.rmtree(Path(folder) / name)
+                    removed += 1
+            except OSError:
+                pass
     if cache_dir is not None:
         for path in cache_temporaries(cache_dir):
             drop(path)

@@ -11,7 +11,12 @@ A crash in native code, or an asset over its time or memory limit, ends only its
 record, the worker lives on. A worker that dies mid-asset (killed, out of memory) loses its task and
 the scheduler runs it again elsewhere; after ``allowed-failures`` + 1 dead workers (the
 scheduler's setting, `ALLOWED_FAILURES` for ``local:N``) the asset is a failed record with a
-one-line error and the batch goes on.
+one-line error and the batch goes on. The dead worker's child dies with it (`asset_process.child_main`).
+
+A batch interrupted (`asset_process.Interrupted`) cancels its tasks and stops their children on
+every worker (`asset_process.stop`): a task that has started runs on when cancelled. A ``local:N``
+cluster's workers are started with the stop signals blocked (`asset_process.signals_held`): Ctrl-C
+reaches them too, and they end when the batch closes the cluster, without a traceback.
 """
 
 from __future__ import annotations
@@ -26,10 +31,11 @@ from collections.abc import Callable
 from concurrent.futures import CancelledError
 from dataclasses import replace
 from importlib.metadata import PackageNotFoundError, requires, version
+from multiprocessing import resource_tracker
 from pathlib import Path
 
-from sssbake.pipeline.bake.asset_process import supervise
-from sssbake.pipeline.bake.batch import Job, input_bytes, task_for
+from sssbake.pipeline.bake.asset_process import Interrupted, signals_held, stop, supervise
+from sssbake.pipeline.bake.batch import Job, input_bytes, task_for, up_to_date_record
 from sssbake.pipeline.config import BatchConfig
 from sssbake.pipeline.core.errors import SssbakeError
 
@@ -50,7 +56,7 @@ class ClusterError(SssbakeError, RuntimeError):
 
 def run_on_dask(
     jobs: list[Job], config: BatchConfig, overrides: dict, cache_dir: str | None, scheduler: str, *,
-    on_done: Callable[[], object] | None = None, since: float | None = None,
+    on_done: Callable[[int, dict], object] | None = None, since: float | None = None,
 ) -> list[dict]:
     """Bake `jobs` as tasks on the Dask cluster at `scheduler`; one `run_job` record per job.
 
@@ -65,7 +71,7 @@ def run_on_dask(
         A scheduler address (``tcp://host:8786``), or ``local:N``: a LocalCluster of N
         single-threaded worker processes on 127.0.0.1, closed when the batch ends.
     on_done : callable, optional
-        Called once per finished asset (the progress bar's update).
+        Called with a job's index and its record as each ends.
     since : float, optional
         The batch's start on the output filesystem's clock: an asset found up to date whose report
         is newer was baked by this batch (a task run again after its worker died with the result)
@@ -82,6 +88,9 @@ def run_on_dask(
     ClusterError
         ``local:N`` with N < 1, an unreachable scheduler, or workers whose sssbake or libraries
         differ from this process's.
+    asset_process.Interrupted
+        Once the batch's tasks are cancelled and their children stopped (`on_done` is called for a
+        job whose outputs are then up to date, its record not yet come).
     """
     import dask
     from distributed import Client, LocalCluster
@@ -97,7 +106,8 @@ def run_on_dask(
             try:
                 # Non-daemonic workers may fork their assets' children from a preloaded fork server
                 # (a daemonic one must start a fresh interpreter per asset, `asset_process`).
-                with dask.config.set({"distributed.worker.daemon": False}):
+                resource_tracker.ensure_running()  # before `signals_held`, which it would undo
+                with dask.config.set({"distributed.worker.daemon": False}), signals_held():
                     cluster = LocalCluster(
                         n_workers=int(local[1]), threads_per_worker=1, processes=True, host="127.0.0.1",
                         dashboard_address=None, silence_logs=logging.ERROR,
@@ -147,33 +157,47 @@ def _run(client, jobs, config, overrides, cache_dir, on_done, pin: int | None, s
         while len(futures) < slots and (i := next(pending, None)) is not None:
             job = jobs[i]
             task = task_for(replace(job, path=job.path.absolute()), config, overrides, cache)
-            fut = client.submit(_run_supervised, pin, task, key=(f"sssbake-bake-{token}", i), pure=False,
+            fut = client.submit(_run_supervised, pin, token, task, key=(f"sssbake-bake-{token}", i), pure=False,
                                 retries=RETRIES)
             futures[fut], started[fut] = i, time.perf_counter()
             done.add(fut)
 
     records: list[dict | None] = [None] * len(jobs)
-    top_up()
-    for fut, result in done:
-        i = futures.pop(fut)
-        job = jobs[i]
-        if fut.status == "finished":
-            records[i] = _as_given(result, job, since)
-        else:
-            records[i] = {"asset": str(job.path), "outputs": [], "status": "failed",
-                          "error": _task_error(job, CancelledError() if fut.status == "cancelled" else fut.exception()),
-                          "seconds": round(time.perf_counter() - started[fut], 3)}
-        fut.release()  # the record is copied; the scheduler may forget the task
-        if on_done is not None:
-            on_done()
+    try:
         top_up()
+        for fut, result in done:
+            i = futures.pop(fut)
+            job = jobs[i]
+            if fut.status == "finished":
+                records[i] = _as_given(result, job, since)
+            else:
+                records[i] = {"asset": str(job.path), "outputs": [], "status": "failed",
+                              "error": _task_error(job, CancelledError() if fut.status == "cancelled"
+                                                   else fut.exception()),
+                              "seconds": round(time.perf_counter() - started[fut], 3)}
+            fut.release()  # the record is copied; the scheduler may forget the task
+            if on_done is not None:
+                on_done(i, records[i])
+            top_up()
+    except Interrupted:
+        with signals_held():
+            client.cancel(list(futures))
+            client.run(stop, token, on_error="ignore")
+            # a task that finished as the batch stopped, before its record came: its outputs tell
+            for i, job in enumerate(jobs):
+                if records[i] is None and (record := up_to_date_record(job, config, overrides)) is not None:
+                    records[i] = _as_given(record, job, since)
+                    if on_done is not None:
+                        on_done(i, records[i])
+        raise
     return records
 
 
-def _run_supervised(count: int | None, task) -> dict:
-    """`task`'s record from a supervised child of this worker (`asset_process.supervise`); on
-    worker `name` of a ``local:count`` cluster the child is confined to the worker's share of the
-    CPUs (`batch.pin_to_share`; a restarted worker keeps its name, and so its share)."""
+def _run_supervised(count: int | None, token: str, task) -> dict:
+    """`task`'s record from a supervised child of this worker (`asset_process.supervise`, for the
+    batch `token`); on worker `name` of a ``local:count`` cluster the child is confined to the
+    worker's share of the CPUs (`batch.pin_to_share`; a restarted worker keeps its name, and so its
+    share)."""
     pin = None
     if count is not None:
         try:
@@ -182,7 +206,7 @@ def _run_supervised(count: int | None, task) -> dict:
             pin = (int(get_worker().name), count)
         except (ValueError, TypeError):  # not a LocalCluster worker of ours: run unconfined
             pass
-    return supervise([task], pin=pin)[0]
+    return supervise([task], pin=pin, tag=token)[0]
 
 
 def _as_given(record: dict, job: Job, since: float | None) -> dict:

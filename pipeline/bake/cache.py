@@ -7,9 +7,10 @@ computing it. An entry, ``<folder>/<key[:2]>/<key>.entry``, is `MAGIC`, the SHA-
 rebuild only sssbake's own dataclasses and never run code named by the file (a shared or
 downloaded cache folder is untrusted input; pickle would run whatever an entry names). Entries are
 written atomically, so an interrupted run never leaves a half-written entry; a bit flipped on disk,
-a truncated copy or a payload the codec refuses is detected, reported and recomputed instead of
-silently feeding a wrong value downstream. The pickles of earlier versions (``<key>.pkl``) are
-never read.
+a truncated copy, a payload the codec refuses or a value its stage could not have made (the stage's
+invariants, `invariants`: anyone who may write a shared folder can rewrite an entry with a valid
+checksum) is detected, reported and recomputed instead of silently feeding a wrong value downstream.
+The pickles of earlier versions (``<key>.pkl``) are never read.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import json
 import os
 import re
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -79,27 +80,30 @@ def temporaries(folder: str | os.PathLike) -> Iterator[Path]:
 
 
 class StageCache:
-    """Checksummed stage results under `folder` (None: caching off), stored by `cache_codec`.
-
-    Attributes
-    ----------
-    corrupt : list of str
-        Keys of entries found damaged since this cache object was made (each was deleted, so
-        the stage recomputes and rewrites it).
-    """
+    """Checksummed stage results under `folder` (None: caching off), stored by `cache_codec`."""
 
     def __init__(self, folder: str | os.PathLike | None):
         self.folder = Path(folder) if folder is not None else None
-        self.corrupt: list[str] = []
 
-    def _path(self, key: str) -> Path:
+    def path(self, key: str) -> Path:
+        """The file of `key`'s entry."""
         return self.folder / key[:2] / f"{key}.entry"
 
     def get(self, key: str):
-        """The cached value, or None when absent, damaged (recorded in `corrupt`) or unreadable."""
+        """The cached value, or None when absent, unreadable or damaged (`lookup`)."""
+        return self.lookup(key)[0]
+
+    def lookup(self, key: str, check: Callable[[object], None] | None = None) -> tuple[object, str | None]:
+        """``(value, None)`` for a sound entry, ``(None, None)`` when there is none (or caching is off,
+        or it cannot be read), ``(None, what is wrong)`` for a damaged one, which is deleted.
+
+        Damaged: its checksum fails, the codec refuses its payload, or `check(value)` raises (the
+        value breaks its stage's invariants: `invariants.check_cached`). Whatever `check` raises
+        counts: a crafted value can make a check trip anywhere.
+        """
         if self.folder is None:
-            return None
-        path = self._path(key)
+            return None, None
+        path = self.path(key)
         try:
             with open(path, "rb") as f:
                 # read into a writable buffer: the decoded arrays are views of it, not copies
@@ -107,30 +111,39 @@ class StageCache:
                 if f.readinto(data) != len(data):
                     data = data[:0]  # changed while read: damaged below
         except OSError:
-            return None
+            return None, None
         head = len(MAGIC) + 32
         payload = memoryview(data)[head:]
         if data[:len(MAGIC)] != MAGIC or hashlib.sha256(payload).digest() != data[len(MAGIC):head]:
-            self._discard(key, path)
-            return None
+            return None, self._discard(path, "fails its checksum")
         try:
-            return loads(payload)
-        except CacheFormatError:
+            value = loads(payload)
+        except CacheFormatError as e:
             # intact but refused: crafted, or written by another sssbake whose classes changed
-            self._discard(key, path)
-            return None
+            return None, self._discard(path, f"holds what sssbake does not write ({str(e).splitlines()[0]})")
+        if check is not None:
+            try:
+                check(value)
+            except Exception as e:  # whatever a crafted value makes the check raise refuses it
+                first = str(e).splitlines()[0] if str(e) else ""  # one line for the warning it makes
+                return None, self._discard(path, f"breaks its stage's invariants ({type(e).__name__}: {first})")
+        return value, None
 
-    def _discard(self, key: str, path: Path) -> None:
-        self.corrupt.append(key)
-        path.unlink(missing_ok=True)
+    @staticmethod
+    def _discard(path: Path, problem: str) -> str:
+        try:
+            path.unlink(missing_ok=True)
+        except OSError:  # a folder we may not write: it stays, and each bake recomputes it
+            pass
+        return problem
 
     def put(self, key: str, value) -> None:
         """Store `value` under `key` (TypeError, before anything is written, for a value
-        `cache_codec.dumps` cannot store)."""
+        `cache_codec.dumps` cannot store; OSError when the folder cannot take it, nothing left)."""
         if self.folder is None:
             return
         payload = dumps(value)
-        path = self._path(key)
+        path = self.path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="tmp", suffix=".tmp")  # the shape `temporaries` finds
         try:

@@ -14,6 +14,7 @@ from importlib import resources
 import numpy as np
 
 from sssbake.pipeline.core.errors import SssbakeError
+from sssbake.pipeline.core.ranges import Range, shown
 
 
 class MaterialError(SssbakeError, ValueError):
@@ -24,6 +25,26 @@ class MaterialError(SssbakeError, ValueError):
 #: of Jensen et al. 2001, kept to reproduce the papers.
 PROFILE_MODELS = ("montecarlo", "dipole")
 DEFAULT_PROFILE = "montecarlo"
+
+# The ranges a material's numbers may take (docs/ranges.md gives them with the options').
+#: Each channel's σ'_s and σ_a. The profile peaks at R_d(0) ≈ 600 σ'_t² per mm² (its shallowest pole
+#: lies 1e-3 free paths deep), and past σ'_t ≈ 1e6 the kernels' profile table's relative error test
+#: (over at least 1e-300, `profile_table`) overflows on the 20 mm sample sphere: 1e4 (a free path of
+#: 0.1 µm, a thousand times the densest preset's) keeps two decades from it.
+COEFFICIENT = Range(0.0, 1e4, "R_d(0) ≈ 600 σ'_t² overflows the profile tables' error test past ~1e6", "1/mm")
+#: Each channel's σ'_t = σ'_s + σ_a. The profile's radii are searched up to 1e12 mm
+#: (`profile.radius_for_energy`), and a profile without absorption keeps the share ~z/r of its
+#: energy beyond r (z ~ a free path): for the radius that drops 1e-6 of it (the finest share a
+#: table resolves, `screen_table_error`'s floor) to stay inside the search, a free path is at most
+#: 1e6 mm. (At 1e-12 /mm screen finds no table; at 1e-50 the escape walk's flight lengths overflow.)
+EXTINCTION = Range(1e-6, 2 * COEFFICIENT.high, "a free path beyond 1e6 mm puts the profile's radii past its "
+                   "1e12 mm search", "1/mm")
+#: ``mean_free_path_mm`` (1/σ'_t) of an albedo spec: `EXTINCTION`'s inverse, within `COEFFICIENT`.
+MEAN_FREE_PATH = Range(1.0 / COEFFICIENT.high, 1.0 / EXTINCTION.low, "the inverse of the extinction's range", "mm")
+#: η under the dipole (the fallback evaluates the classical dipole for every material): its
+#: boundary term A = (1 + F_dr) / (1 - F_dr) is infinite where Jensen's fit F_dr(η) reaches 1, at
+#: η = 3.848, and negative (a virtual source above the surface) beyond; diamond is 2.42.
+ETA_DIPOLE = Range(1.0, 3.8, "the dipole's boundary term A is infinite at 3.848")
 
 
 @dataclass(frozen=True)
@@ -61,31 +82,24 @@ class Material:
     back_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
-        s = _rgb(self.sigma_s_prime, "sigma_s_prime", self.name)
-        a = _rgb(self.sigma_a, "sigma_a", self.name)
+        s = _rgb(self.sigma_s_prime, "sigma_s_prime", self.name, COEFFICIENT)
+        a = _rgb(self.sigma_a, "sigma_a", self.name, COEFFICIENT)
         object.__setattr__(self, "sigma_s_prime", s)
         object.__setattr__(self, "sigma_a", a)
-        if not (isinstance(self.eta, (int, float)) and math.isfinite(self.eta)) or self.eta < 1.0:
-            raise MaterialError(f"material {self.name!r}: eta must be a finite number >= 1, got {self.eta!r}")
-        object.__setattr__(self, "eta", float(self.eta))
+        object.__setattr__(self, "eta", _eta(self.eta, self.name, self.profile))
         for field in ("escape_gain", "back_gain"):
             gain = _rgb(getattr(self, field), field, self.name)
             if min(gain) <= 0.0:
                 raise MaterialError(f"material {self.name!r}: {field} must be > 0, got {list(gain)}")
             object.__setattr__(self, field, gain)
-        if self.profile not in PROFILE_MODELS:
-            raise MaterialError(f"material {self.name!r}: profile must be one of {', '.join(PROFILE_MODELS)}, "
-                                f"got {self.profile!r}")
-        if self.profile == "montecarlo":
-            from sssbake.pipeline.core.montecarlo_profile import ETAS
-
-            if self.eta > ETAS[-1]:
-                raise MaterialError(f"material {self.name!r}: eta {self.eta:g} is beyond the Monte Carlo profile's "
-                                    f"table (1-{ETAS[-1]:g}); use --profile dipole")
         if any(x + y <= 0.0 for x, y in zip(s, a)):
             raise MaterialError(
                 f"material {self.name!r}: sigma_s_prime + sigma_a must be > 0 in every channel"
             )
+        if any(x + y not in EXTINCTION for x, y in zip(s, a)):
+            raise MaterialError(f"material {self.name!r}: sigma_s_prime + sigma_a must be in {EXTINCTION.text()} "
+                                f"in every channel (a free path up to {MEAN_FREE_PATH.high:g} mm), got "
+                                f"{[x + y for x, y in zip(s, a)]}")
 
     @property
     def half_space(self) -> "Material":
@@ -151,11 +165,33 @@ class Material:
         return out
 
 
-def _rgb(value, field: str, name: str) -> tuple[float, float, float]:
+def _eta(eta, name: str, profile: str) -> float:
+    """`eta` as a float, checked for the profile model `profile` (which it is checked against first)."""
+    if profile not in PROFILE_MODELS:
+        raise MaterialError(f"material {name!r}: profile must be one of {', '.join(PROFILE_MODELS)}, "
+                            f"got {shown(profile)}")
+    if not (isinstance(eta, (int, float)) and not isinstance(eta, bool) and eta >= 1.0 and math.isfinite(eta)):
+        raise MaterialError(f"material {name!r}: eta must be a finite number >= 1, got {shown(eta)}")
+    if eta not in ETA_DIPOLE:
+        raise MaterialError(f"material {name!r}: eta must be in {ETA_DIPOLE.text()} ({ETA_DIPOLE.why}), got {eta:g}")
+    if profile == "montecarlo":
+        from sssbake.pipeline.core.montecarlo_profile import ETAS
+
+        if eta > ETAS[-1]:
+            raise MaterialError(f"material {name!r}: eta {eta:g} is beyond the Monte Carlo profile's "
+                                f"table (1-{ETAS[-1]:g}); use --profile dipole")
+    return float(eta)
+
+
+def _rgb(value, field: str, name: str, allowed: Range | None = None) -> tuple[float, float, float]:
+    """`value` (one number or three) as three floats, each finite, >= 0 and in `allowed`."""
+    if isinstance(value, (bool, str, bytes)) or (isinstance(value, (list, tuple)) and any(
+            isinstance(v, (bool, str, bytes)) for v in value)):  # numpy reads "1" and True as numbers
+        raise MaterialError(f"material {name!r}: {field} must be numbers, got {shown(value)}")
     try:
         arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise MaterialError(f"material {name!r}: {field} must be numbers, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise MaterialError(f"material {name!r}: {field} must be numbers, got {shown(value)}") from None
     if arr.size == 1:
         arr = np.repeat(arr, 3)
     if arr.size != 3:
@@ -164,6 +200,9 @@ def _rgb(value, field: str, name: str) -> tuple[float, float, float]:
         raise MaterialError(f"material {name!r}: {field} must be finite, got {arr.tolist()}")
     if np.any(arr < 0.0):
         raise MaterialError(f"material {name!r}: {field} must be >= 0, got {arr.tolist()}")
+    if allowed is not None and not all(float(v) in allowed for v in arr):
+        raise MaterialError(f"material {name!r}: {field} must be in {allowed.text()} in every channel, "
+                            f"got {arr.tolist()}")
     return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
@@ -184,7 +223,7 @@ def preset(name: str, profile: str = DEFAULT_PROFILE) -> Material:
     for key, row in _table().items():
         if key.lower() == name.lower():
             return Material(key.lower(), row["sigma_s_prime"], row["sigma_a"], row["eta"], profile)
-    raise MaterialError(f"unknown material preset {name!r}; choose one of {', '.join(preset_names())}")
+    raise MaterialError(f"unknown material preset {shown(name)}; choose one of {', '.join(preset_names())}")
 
 
 def from_albedo_mfp(name: str, albedo, mfp_mm, eta: float = 1.3, profile: str = DEFAULT_PROFILE) -> Material:
@@ -208,8 +247,10 @@ def from_albedo_mfp(name: str, albedo, mfp_mm, eta: float = 1.3, profile: str = 
     mfp = np.asarray(_rgb(mfp_mm, "mean_free_path_mm", name))
     if np.any(mfp <= 0.0):
         raise MaterialError(f"material {name!r}: mean_free_path_mm must be > 0, got {mfp.tolist()}")
-    if profile not in PROFILE_MODELS:
-        raise MaterialError(f"material {name!r}: profile must be one of {', '.join(PROFILE_MODELS)}, got {profile!r}")
+    if not all(float(v) in MEAN_FREE_PATH for v in mfp):
+        raise MaterialError(f"material {name!r}: mean_free_path_mm must be in {MEAN_FREE_PATH.text()} in every "
+                            f"channel, got {mfp.tolist()}")
+    eta = _eta(eta, name, profile)
     rd_max = float(total_for_albedo(1.0, eta, profile)[0])
     alphas = []
     for r in rd:
@@ -231,13 +272,17 @@ def material_from_spec(spec: dict | str, name: str = "custom", profile: str = DE
     if isinstance(spec, str):
         return preset(spec, profile)
     if not isinstance(spec, dict):
-        raise MaterialError(f"material {name!r}: expected a preset name or a table, got {spec!r}")
+        raise MaterialError(f"material {name!r}: expected a preset name or a table, got {shown(spec)}")
     keys = set(spec) - {"scale_mm", "name", "profile"}
     profile = spec.get("profile", profile)
+    if not isinstance(spec.get("name", name), str):
+        raise MaterialError(f"material {name!r}: name must be a string, got {shown(spec['name'])}")
     if "preset" in keys:
         extra = keys - {"preset"}
         if extra:
             raise MaterialError(f"material {name!r}: 'preset' cannot be combined with {sorted(extra)}")
+        if not isinstance(spec["preset"], str):
+            raise MaterialError(f"material {name!r}: preset must be a preset's name, got {shown(spec['preset'])}")
         return preset(spec["preset"], profile)
     if {"sigma_s_prime", "sigma_a"} <= keys:
         extra = keys - {"sigma_s_prime", "sigma_a", "eta"}

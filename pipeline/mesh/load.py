@@ -38,7 +38,8 @@ def load_scene(path: str | os.PathLike, allow_roots: tuple[str, ...] = ()) -> Sc
     AssetError
         For every problem with the file (missing, unsupported type, truncated, corrupt, no
         triangles, non-finite positions, face indices out of range, a reference outside the
-        allowed folders); no other exception escapes for a bad file.
+        allowed folders) and a Python module its reader lacks; no other exception escapes for a
+        bad file.
     """
     path = os.fspath(path)
     ext = Path(path).suffix.lower()
@@ -56,21 +57,18 @@ def load_scene(path: str | os.PathLike, allow_roots: tuple[str, ...] = ()) -> Sc
         raise AssetError(path, "is a folder, not a file")
     if size == 0:
         raise AssetError(path, "empty file (0 bytes)")
-    # Readers are imported here, not at module level: they import AssetError from this module,
-    # and a glTF-only batch need not pay for importing trimesh or pxr.
-    if ext in (".gltf", ".glb"):
-        from sssbake.pipeline.mesh.load_gltf import load_gltf as reader
-    elif ext in (".usd", ".usda", ".usdc"):
-        from sssbake.pipeline.mesh.load_usd import load_usd as reader
-    else:
-        from sssbake.pipeline.mesh.load_trimesh import load_trimesh as reader
+    if ext in (".usd", ".usda", ".usdc") and not _utf8(path):
+        # pxr takes a path as UTF-8 text, and a layer is known by its path
+        raise AssetError(path, "USD cannot open a file whose path is not UTF-8: rename it")
     from sssbake.pipeline.mesh.confine import Confinement
 
     try:
         with _quiet_parsers():
-            scene = reader(path, Confinement.for_asset(path, allow_roots))
+            scene = _reader(ext)(path, Confinement.for_asset(path, allow_roots))
     except AssetError:
         raise
+    except ImportError as e:  # a missing library is not a corrupt file (parsers import some on the way)
+        raise AssetError(path, _missing_module(e)) from e
     except OSError as e:
         raise AssetError(path, f"cannot read file: {e.strerror or e}") from e
     except Exception as e:  # any parser failure on a bad file must reach the user as one line
@@ -78,6 +76,44 @@ def load_scene(path: str | os.PathLike, allow_roots: tuple[str, ...] = ()) -> Sc
         raise AssetError(path, f"corrupt {ext[1:].upper()} file ({type(e).__name__}: {detail})") from e
     check_scene(scene)
     return scene
+
+
+def _utf8(path: str) -> bool:
+    """Whether `path` is UTF-8 (os.fsdecode escapes the bytes of a name that is not)."""
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def _reader(ext: str):
+    """The reader of files with extension `ext`."""
+    # Imported here, not at module level: they import AssetError from this module, and a glTF-only
+    # batch need not pay for importing trimesh or pxr.
+    if ext in (".gltf", ".glb"):
+        from sssbake.pipeline.mesh.load_gltf import load_gltf
+
+        return load_gltf
+    if ext in (".usd", ".usda", ".usdc"):
+        from sssbake.pipeline.mesh.load_usd import load_usd
+
+        return load_usd
+    from sssbake.pipeline.mesh.load_trimesh import load_trimesh
+
+    return load_trimesh
+
+
+# Modules whose pip package has another name.
+_PIP_NAMES = {"PIL": "pillow", "pxr": "usd-core"}
+
+
+def _missing_module(e: ImportError) -> str:
+    """What to say when reading a file fails on `e`: which module, and how to install it."""
+    top = (e.name or "").split(".")[0]
+    if not top:  # a library's own ImportError, naming no module
+        return f"needs a Python module that failed to import ({e})"
+    return f"needs the Python module {top} ({e}): pip install {_PIP_NAMES.get(top, top.replace('_', '-'))}"
 
 
 @contextlib.contextmanager

@@ -1,8 +1,11 @@
-"""glTF 2.0 (.gltf with external or data-URI buffers, and .glb) through pygltflib's object model.
+"""glTF 2.0 (.gltf with external or data-URI buffers, and .glb).
 
-The GLB container, buffers and accessors are decoded here rather than by pygltflib so that every
+The GLB container, the JSON, buffers and accessors are decoded here, not by pygltflib, so that every
 inconsistency (short chunk, buffer shorter than a view needs, index out of range) becomes an
-`AssetError` that says which one.
+`AssetError` that says which one, and so that reading stays linear: pygltflib's dataclasses_json
+decoding takes seconds per thousand nodes. `read_gltf_file` is the one reader of the container and
+the JSON for every command (bake, inspect, verify, view); its objects (`GltfObject`) read their
+properties as attributes, as pygltflib's do.
 
 Extensions: KHR_draco_mesh_compression is decoded with DracoPy (an uncompressed fallback, when the
 extension is only used, is read as it is); EXT_mesh_gpu_instancing becomes one child node per
@@ -12,8 +15,9 @@ is refused, naming it (and, for compression, the command that removes it).
 
 Downloaded files are hostile input: every external buffer and image goes through the asset's
 `Confinement` before a byte is read, a buffer is read up to its declared ``byteLength`` only, and the
-glTF 2.0 rules a broken or malicious file breaks (asset version, accessor types per attribute
-semantic, strides, alignment, sparse and index ranges, GLB chunk layout) are refused in one line.
+glTF 2.0 rules a broken or malicious file breaks (asset version, JSON shapes, accessor types per
+attribute semantic, strides, alignment, sparse and index ranges, GLB chunk layout, a node graph of
+disjoint trees) are refused in one line.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from __future__ import annotations
 import base64
 import binascii
 import json
+import os
 import re
 import struct
 from dataclasses import dataclass, replace
@@ -28,7 +33,6 @@ from pathlib import Path
 from urllib.parse import unquote, unquote_to_bytes, urlsplit
 
 import numpy as np
-import pygltflib
 
 from sssbake.pipeline.core.errors import AssetError
 from sssbake.pipeline.mesh.confine import Confinement
@@ -98,6 +102,80 @@ TARGET_QUANTIZED = {"POSITION": _SNORM | {(5120, False), (5122, False)}, "NORMAL
 INDEX_COMPONENTS = (5121, 5123, 5125)
 VERSION = re.compile(r"(\d+)\.(\d+)")
 IMAGE_SIGNATURES = ((b"\x89PNG", "image/png"), (b"\xff\xd8", "image/jpeg"), (b"RIFF", "image/webp"), (b"\xabKTX", "image/ktx2"))
+#: Deepest JSON nesting read (the root object is level 1). glTF itself nests about 8 deep; extras and
+#: extension objects may nest more, and Python code that walks JSON (the json module's own parser and
+#: encoder among it) recurses once per level, under a limit of 1000 frames.
+MAX_JSON_DEPTH = 256
+_SCALARS = frozenset({str, int, float, bool})
+#: The JSON shape glTF 2.0 gives each property the readers walk, by kind of object: an object of a kind
+#: (``"sparse"``), an array of objects of a kind (``["node"]``), an array of strings (``[str]``) or an
+#: array of anything (``[]``). ``extensions`` is an object in every object; kinds not listed here have
+#: no other property to check (``"object"``).
+SHAPES = {
+    "glTF": {"asset": "object", "extensionsUsed": [str], "extensionsRequired": [str], "accessors": ["accessor"],
+             "animations": ["object"], "buffers": ["object"], "bufferViews": ["object"], "cameras": ["object"],
+             "images": ["object"], "materials": ["material"], "meshes": ["mesh"], "nodes": ["node"],
+             "samplers": ["object"], "scenes": ["scene"], "skins": ["object"], "textures": ["object"]},
+    "accessor": {"sparse": "sparse", "min": [], "max": []},
+    "sparse": {"indices": "object", "values": "object"},
+    "material": {"pbrMetallicRoughness": "pbr", "normalTexture": "object", "occlusionTexture": "object",
+                 "emissiveTexture": "object", "emissiveFactor": []},
+    "pbr": {"baseColorTexture": "object", "metallicRoughnessTexture": "object", "baseColorFactor": []},
+    "mesh": {"primitives": ["primitive"], "weights": []},
+    "primitive": {"attributes": "object", "targets": ["object"]},
+    "node": {"children": [], "matrix": [], "translation": [], "rotation": [], "scale": [], "weights": []},
+    "scene": {"nodes": []},
+}
+#: How messages name an element of an array property (``mesh 0 primitive 1``).
+_ELEMENT_NAMES = {"accessors": "accessor", "animations": "animation", "buffers": "buffer", "bufferViews": "buffer view",
+                  "cameras": "camera", "images": "image", "materials": "material", "meshes": "mesh", "nodes": "node",
+                  "samplers": "sampler", "scenes": "scene", "skins": "skin", "textures": "texture",
+                  "primitives": "primitive", "targets": "morph target"}
+
+
+class GltfObject(dict):
+    """A glTF JSON object whose properties also read (None when absent) and write as attributes
+    (``node.mesh``): the access pygltflib's object model gives, without its per-object decoding."""
+
+    __slots__ = ()
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):  # protocols (copy, pickle) probe dunder names: those are not properties
+            raise AttributeError(name)
+        return self.get(name)
+
+    def __setattr__(self, name: str, value) -> None:
+        self[name] = value
+
+
+class _Sparse(GltfObject):
+    """An accessor's ``sparse`` object: its ``values`` property reads as an attribute too, where a
+    dict's ``values`` method would be found first."""
+
+    __slots__ = ()
+
+    @property
+    def values(self):
+        return self.get("values")
+
+
+@dataclass(frozen=True)
+class GltfFile:
+    """A glTF file's JSON and GLB binary chunk, as `read_gltf_file` checked them.
+
+    Attributes
+    ----------
+    gltf : GltfObject
+        The root object; each array of objects `SHAPES` names is present (``[]`` when the file has none).
+    blob : memoryview or None
+        The GLB BIN chunk (None: a .gltf, or a GLB without one).
+    warnings : tuple of str
+        GLB chunks of unknown type, skipped as the spec requires.
+    """
+
+    gltf: GltfObject
+    blob: memoryview | None
+    warnings: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -105,7 +183,7 @@ class _Document:
     """A parsed glTF file and its decoded buffers."""
 
     path: str
-    gltf: pygltflib.GLTF2
+    gltf: GltfObject
     buffers: tuple[bytes | memoryview, ...]
     confinement: Confinement
     quantized: bool  # KHR_mesh_quantization is used: integer attribute types are allowed
@@ -141,13 +219,8 @@ def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
         an extension.
     """
     confinement = confinement or Confinement.for_asset(path)
-    data = Path(path).read_bytes()
-    warnings: list[str] = []
-    if Path(path).suffix.lower() == ".glb" or data[:4] == b"glTF":
-        text, blob = _split_glb(path, data, warnings)
-    else:
-        text, blob = _decode_text(path, data), None
-    gltf = _parse_json(path, text)
+    file = read_gltf_file(path)
+    gltf = file.gltf
     # Before the buffers: a file requiring meshopt has placeholder buffers with no data.
     for extension in gltf.extensionsRequired or ():
         if extension not in SUPPORTED_REQUIRED:
@@ -157,7 +230,7 @@ def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
                                    "every required extension as used too")
     quantized = QUANTIZATION in (gltf.extensionsUsed or []) + (gltf.extensionsRequired or [])
     files: list[tuple[str, str]] = []
-    doc = _Document(path, gltf, _load_buffers(path, gltf, blob, confinement, files), confinement, quantized, files)
+    doc = _Document(path, gltf, load_buffers(path, gltf, file.blob, confinement, files), confinement, quantized, files)
     meshes, skipped = [], []
     skinned = {node.mesh for node in gltf.nodes if node.mesh is not None and node.skin is not None}
     for i, mesh in enumerate(gltf.meshes):
@@ -186,7 +259,7 @@ def load_gltf(path: str, confinement: Confinement | None = None) -> Scene:
         images=images,
         up_axis="Y",
         meters_per_unit=1.0,
-        warnings=tuple(warnings),
+        warnings=file.warnings,
         dependencies=tuple(dict.fromkeys(files)),
     )
 
@@ -195,6 +268,31 @@ def _unsupported(extension: str, detail: str = "") -> str:
     """The one-line refusal of a required `extension`, with the command that removes it when there is one."""
     fix = DECOMPRESS.get(extension)
     return f"{extension} is required and not supported{detail}" + (f"; decompress it first ({fix})" if fix else "")
+
+
+def read_gltf_file(path: str | os.PathLike) -> GltfFile:
+    """A .gltf or .glb file's JSON and GLB binary chunk, checked; the one reader of glTF files for
+    every command (`load_gltf`; inspect, verify and view through `gltf_tables.load_sssbake_gltf`).
+
+    Every GLB length field (the header's, each chunk's) is checked against the bytes the file really
+    holds before it is trusted (`_split_glb`), and the JSON as `_parse_json` says.
+
+    Raises
+    ------
+    AssetError
+        The file cannot be read, or any of those checks fails.
+    """
+    path = os.fspath(path)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as e:
+        raise AssetError(path, f"cannot read file: {e.strerror or e}") from None
+    warnings: list[str] = []
+    if Path(path).suffix.lower() == ".glb" or data[:4] == b"glTF":
+        text, blob = _split_glb(path, data, warnings)
+    else:
+        text, blob = _decode_text(path, data), None
+    return GltfFile(_parse_json(path, text), blob, tuple(warnings))
 
 
 def _split_glb(path: str, data: bytes, warnings: list[str]) -> tuple[str, memoryview | None]:
@@ -253,40 +351,85 @@ def _decode_text(path: str, data: bytes) -> str:
         raise AssetError(path, f"invalid JSON: not UTF-8 text (byte {e.start})") from None
 
 
-def _parse_json(path: str, text: str) -> pygltflib.GLTF2:
+def _parse_json(path: str, text: str) -> GltfObject:
+    """The root object of glTF JSON `text`, checked: nesting (`MAX_JSON_DEPTH`), nulls, the asset
+    version and the shape of every property the readers walk (`SHAPES`)."""
     try:
-        raw = json.loads(text)
+        raw = json.loads(text, object_pairs_hook=GltfObject)
+    except RecursionError:  # the parser recurses per level: past ~1000 levels it stops here
+        raise AssetError(path, f"JSON nested deeper than {MAX_JSON_DEPTH} levels") from None
     except json.JSONDecodeError as e:
         raise AssetError(path, f"invalid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+    except ValueError as e:  # an integer of more digits than Python converts
+        raise AssetError(path, f"invalid JSON: {e}") from None
     if not isinstance(raw, dict):
         raise AssetError(path, f"invalid glTF: the top-level JSON value is a {type(raw).__name__}, not an object")
+    _check_tree(path, raw)
     _check_version(path, raw.get("asset"))
-    null = _null_path(raw)
-    if null is not None:
-        raise AssetError(path, f"invalid glTF: {null} is null (glTF 2.0 allows null nowhere outside extras)")
-    try:
-        return pygltflib.GLTF2.gltf_from_json(text)
-    except Exception as e:  # pygltflib's decoder fails with assorted types on misplaced JSON values
-        raise AssetError(path, f"invalid glTF structure ({type(e).__name__}: {e})") from None
+    _check_shape(path, raw, "glTF", "")
+    return raw
 
 
-def _null_path(raw: dict) -> str | None:
-    """Where a JSON null lies outside ``extras``, e.g. ``"meshes[0].primitives[1]"``, or None.
+def _check_tree(path: str, raw: dict) -> None:
+    """Refuse JSON nested deeper than `MAX_JSON_DEPTH`, or holding a null outside ``extras`` (glTF 2.0
+    allows it nowhere else, and every lookup would trip on it).
 
-    pygltflib keeps a null as None (an array entry, ``"accessors": null``), which every lookup would
-    trip on. A stack, not recursion: JSON nested as deep as the parser allows must not overflow it."""
-    stack = [("", raw)]
+    A stack, not recursion: the walk must not overflow on the nesting it is there to refuse. Where a
+    null lies (``meshes[0].primitives[1]``) is spelled out only when one is found."""
+    stack = [(raw, 1, (), False)]  # (value, its level, keys to it, inside extras)
     while stack:
-        where, value = stack.pop()
-        items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
-        for key, item in items:
-            if key == "extras":
-                continue
-            here = f"{where}.{key}".lstrip(".") if isinstance(key, str) else f"{where}[{key}]"
-            if item is None:
-                return here
-            stack.append((here, item))
-    return None
+        value, depth, keys, extras = stack.pop()
+        if depth > MAX_JSON_DEPTH:
+            raise AssetError(path, f"JSON nested deeper than {MAX_JSON_DEPTH} levels")
+        if isinstance(value, list) and set(map(type, value)) <= _SCALARS:
+            continue  # numbers or strings: the common array, checked at C speed
+        for key, item in value.items() if isinstance(value, dict) else enumerate(value):
+            if item is None and not extras:
+                where = "".join(f".{k}" if isinstance(k, str) else f"[{k}]" for k in (*keys, key)).lstrip(".")
+                raise AssetError(path, f"invalid glTF: {where} is null (glTF 2.0 allows null nowhere outside extras)")
+            if isinstance(item, (dict, list)):
+                stack.append((item, depth + 1, (*keys, key), extras or key == "extras"))
+
+
+def _check_shape(path: str, obj: GltfObject, kind: str, where: str) -> None:
+    """Refuse a property of `obj` (an object of `kind`, named `where` in messages: ``"mesh 0"``)
+    whose JSON type is not the one `SHAPES` gives it, and set each absent array of objects to ``[]``.
+    Recurses through `SHAPES` only: as deep as that table, whatever the file's nesting."""
+    at = f"{where}: " if where else ""
+    extensions = obj.get("extensions")
+    if extensions is not None and not isinstance(extensions, dict):
+        raise AssetError(path, f"{at}extensions is {_brief(extensions)}, not an object")
+    for name, shape in SHAPES.get(kind, {}).items():
+        value = obj.get(name)
+        if value is None:
+            if isinstance(shape, list) and shape and shape[0] is not str:
+                obj[name] = []
+            continue
+        if isinstance(shape, str):
+            if not isinstance(value, dict):
+                raise AssetError(path, f"{at}{name} is {_brief(value)}, not an object")
+            if shape == "sparse":
+                obj[name] = value = _Sparse(value)
+            _check_shape(path, value, shape, f"{where} {name}".lstrip())
+            continue
+        if not isinstance(value, list):
+            raise AssetError(path, f"{at}{name} is {_brief(value)}, not an array")
+        element = _ELEMENT_NAMES.get(name, name)
+        for i, item in enumerate(value):
+            if shape == [str] and not isinstance(item, str):
+                raise AssetError(path, f"{at}{name}[{i}] is {_brief(item)}, not a string")
+            if shape and shape[0] is not str:
+                if not isinstance(item, dict):
+                    raise AssetError(path, f"{at}{element} {i} is {_brief(item)}, not an object")
+                _check_shape(path, item, shape[0], f"{where} {element} {i}".lstrip())
+
+
+def _brief(value) -> str:
+    """`value` for a message: its repr, or its JSON type when that is long."""
+    text = repr(value)
+    if len(text) <= 40:
+        return text
+    return {dict: "an object", list: "an array", str: "a string"}.get(type(value), "a number")
 
 
 def _check_version(path: str, asset) -> None:
@@ -366,8 +509,8 @@ def _uri_bytes(path: str, uri, what: str, confinement: Confinement, limit: int,
     return data, None
 
 
-def _load_buffers(path: str, gltf: pygltflib.GLTF2, blob: memoryview | None,
-                  confinement: Confinement, read: list[tuple[str, str]]) -> tuple[bytes | memoryview, ...]:
+def load_buffers(path: str, gltf: GltfObject, blob: memoryview | None,
+                 confinement: Confinement, read: list[tuple[str, str]]) -> tuple[bytes | memoryview, ...]:
     """Each buffer's first ``byteLength`` bytes (a GLB BIN chunk may be padded past it; an external
     file is read no further, and its real path and digest appended to `read`)."""
     out = []
@@ -429,7 +572,7 @@ def _strided(doc: _Document, view_index, offset, dtype: str, count: int, kind: s
     return np.ndarray((count, width), dtype, buffer=data, offset=offset, strides=(stride, itemsize)).copy()
 
 
-def _accessor(doc: _Document, index, what: str) -> tuple[np.ndarray, pygltflib.Accessor]:
+def _accessor(doc: _Document, index, what: str) -> tuple[np.ndarray, GltfObject]:
     """(count, components) array of an accessor in its stored component type, sparse values applied."""
     acc = _item(doc, doc.gltf.accessors, index, "accessor")
     name = f"{what} (accessor {index})"
@@ -479,7 +622,7 @@ def _floats(values: np.ndarray, normalized: bool) -> np.ndarray:
     return np.maximum(out, -1.0) if values.dtype.kind == "i" else out
 
 
-def _check_semantic(doc: _Document, acc: pygltflib.Accessor, index, name: str, where: str,
+def _check_semantic(doc: _Document, acc: GltfObject, index, name: str, where: str,
                     table: dict = SEMANTICS, quantized: dict = QUANTIZED) -> None:
     """Refuse an accessor whose type, componentType or normalized flag glTF 2.0 does not allow for
     attribute `name` (`table`, widened by `quantized` when the file uses KHR_mesh_quantization; a morph
@@ -529,15 +672,12 @@ def _attribute(doc: _Document, index, name: str, count: int | None, where: str,
     return _floats(values, bool(acc.normalized))
 
 
-def _primitive(doc: _Document, prim: pygltflib.Primitive, where: str) -> Primitive | None:
+def _primitive(doc: _Document, prim: GltfObject, where: str) -> Primitive | None:
     """A primitive's triangles and vertex attributes; None for points and lines."""
-    mode = 4 if prim.mode is None else prim.mode
+    mode = _whole(doc.path, prim.mode, f"{where} mode", default=4)
     if mode not in (4, 5, 6):
         return None
-    if not isinstance(prim.attributes, (dict, pygltflib.Attributes)):
-        raise AssetError(doc.path, f"{where}: attributes is {prim.attributes!r}, not an object")
-    raw = prim.attributes if isinstance(prim.attributes, dict) else vars(prim.attributes)
-    attrs = {k: v for k, v in raw.items() if v is not None}
+    attrs = dict(prim.attributes or {})
     if "POSITION" not in attrs:
         raise AssetError(doc.path, f"{where} has no POSITION attribute")
     # Attributes sssbake does not read (JOINTS_n, WEIGHTS_n, ...) must still be what the spec allows.
@@ -611,13 +751,11 @@ def _unstrided(doc: _Document, view_index, what: str) -> None:
                                    "allows byteStride only on vertex attribute data")
 
 
-def _check_targets(doc: _Document, prim: pygltflib.Primitive, count, where: str) -> None:
+def _check_targets(doc: _Document, prim: GltfObject, count, where: str) -> None:
     """Refuse a morph target whose attribute is not an object of accessors of the kind glTF 2.0 allows
     (`TARGET_SEMANTICS`) or whose count differs from the primitive's POSITION `count`. sssbake does not
     read the displacements; a file breaking these rules is still not glTF."""
     for t, target in enumerate(prim.targets or ()):
-        if not isinstance(target, dict):
-            raise AssetError(doc.path, f"{where}: morph target {t} is {target!r}, not an object")
         for name, index in target.items():
             acc = _item(doc, doc.gltf.accessors, index, "accessor")
             _check_semantic(doc, acc, index, name, f"{where} target {t}", TARGET_SEMANTICS, TARGET_QUANTIZED)
@@ -626,7 +764,7 @@ def _check_targets(doc: _Document, prim: pygltflib.Primitive, count, where: str)
                                            f"but POSITION has {count!r}")
 
 
-def _draco(doc: _Document, prim: pygltflib.Primitive, attrs: dict, where: str) -> dict[str, np.ndarray]:
+def _draco(doc: _Document, prim: GltfObject, attrs: dict, where: str) -> dict[str, np.ndarray]:
     """A KHR_draco_mesh_compression primitive's attributes (by glTF name) and ``indices``, decoded.
 
     Empty when the primitive is not compressed, or when the extension is only used and the accessors
@@ -672,64 +810,113 @@ def _faces(doc: _Document, index: np.ndarray, mode: int, where: str) -> np.ndarr
     return np.column_stack([index[i + 1], index[i + 2], np.full(len(i), index[0] if len(index) else 0)])
 
 
-def _node_matrix(doc: _Document, node: pygltflib.Node, i: int) -> np.ndarray:
-    """(4, 4) local transform from ``matrix`` (column-major) or translation, rotation, scale."""
-    try:
-        if node.matrix is not None:
-            matrix = np.asarray(node.matrix, np.float64).reshape(4, 4).T
-        else:
-            t = np.asarray(node.translation if node.translation is not None else (0, 0, 0), np.float64).reshape(3)
-            q = np.asarray(node.rotation if node.rotation is not None else (0, 0, 0, 1), np.float64).reshape(4)
-            s = np.asarray(node.scale if node.scale is not None else (1, 1, 1), np.float64).reshape(3)
-            matrix = np.eye(4)
-            matrix[:3, :3] = _quaternion_matrix(q) * s
-            matrix[:3, 3] = t
-    except (ValueError, TypeError) as e:
-        raise AssetError(doc.path, f"node {i} has a malformed transform ({e})") from None
-    if not np.isfinite(matrix).all():
-        raise AssetError(doc.path, f"node {i} has a non-finite transform")
-    return matrix
+def _node_matrices(doc: _Document) -> np.ndarray:
+    """(n, 4, 4) local transform of every node, from ``matrix`` (column-major) or translation,
+    rotation, scale; computed for all nodes at once (a file may hold 100,000)."""
+    nodes = doc.gltf.nodes
+    n = len(nodes)
+    fields = {"translation": (3, (0.0, 0.0, 0.0)), "rotation": (4, (0.0, 0.0, 0.0, 1.0)), "scale": (3, (1.0, 1.0, 1.0)),
+              "matrix": (16, tuple(np.eye(4).ravel()))}
+    values = {}
+    for name, (width, default) in fields.items():
+        values[name] = np.tile(np.array(default), (n, 1))
+        given = [i for i, node in enumerate(nodes) if node.get(name) is not None]
+        try:
+            values[name][given] = np.array([nodes[i][name] for i in given], np.float64).reshape(len(given), width)
+        except (ValueError, TypeError, OverflowError):  # another length, or not numbers: name the first such node
+            for i in given:
+                try:
+                    shape = np.array(nodes[i][name], np.float64).shape
+                except (ValueError, TypeError, OverflowError):
+                    shape = None
+                if shape != (width,):
+                    raise AssetError(doc.path, f"node {i} has a malformed transform ({name} is "
+                                               f"{_brief(nodes[i][name])}, not {width} numbers)") from None
+        finite = np.isfinite(values[name]).all(axis=1)
+        if not finite.all():  # before normalising: a NaN quaternion would read as none at all
+            raise AssetError(doc.path, f"node {int(np.argmin(finite))} has a non-finite transform")
+    matrices = np.zeros((n, 4, 4))
+    matrices[:, :3, :3] = _quaternion_matrices(values["rotation"]) * values["scale"][:, None, :]
+    matrices[:, :3, 3] = values["translation"]
+    matrices[:, 3, 3] = 1.0
+    given = [i for i, node in enumerate(nodes) if node.get("matrix") is not None]
+    matrices[given] = values["matrix"][given].reshape(-1, 4, 4).transpose(0, 2, 1)
+    finite = np.isfinite(matrices).all(axis=(1, 2))
+    if not finite.all():  # finite parts, overflowing product
+        raise AssetError(doc.path, f"node {int(np.argmin(finite))} has a non-finite transform")
+    return matrices
 
 
-def _quaternion_matrix(q: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation of a quaternion (x, y, z, w), normalised first."""
-    norm = np.linalg.norm(q)
-    x, y, z, w = q / norm if norm > 0 else (0.0, 0.0, 0.0, 1.0)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+def _quaternion_matrices(q: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations of quaternions (n, 4) (x, y, z, w), each normalised first (a zero one: none)."""
+    norm = np.linalg.norm(q, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q = np.where((norm > 0)[:, None], q / norm[:, None], [0.0, 0.0, 0.0, 1.0])
+    x, y, z, w = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=1)
 
 
 def _nodes(doc: _Document) -> tuple[Node, ...]:
-    """All nodes; refuses a graph where a node has two parents (it would not be a tree)."""
+    """All nodes, checked to form disjoint strict trees (glTF 2.0 "Nodes and Hierarchy"; `_check_trees`)."""
     gltf = doc.gltf
     nodes = []
     instances: list[Node] = []  # EXT_mesh_gpu_instancing: one child node per instance, after the file's nodes
-    parents = np.zeros(len(gltf.nodes), np.int64)
+    parents = [-1] * len(gltf.nodes)
+    matrices = _node_matrices(doc)
     for i, node in enumerate(gltf.nodes):
-        if node.mesh is not None:
-            _item(doc, gltf.meshes, node.mesh, "mesh")
-        children = tuple(node.children or ())
+        mesh = node.get("mesh")
+        if mesh is not None:
+            _item(doc, gltf.meshes, mesh, "mesh")
+        children = tuple(node.get("children") or ())
         for c in children:
             _item(doc, gltf.nodes, c, "node")
-        np.add.at(parents, list(children), 1)
-        name, mesh = node.name or f"node_{i}", node.mesh
-        instancing = (node.extensions or {}).get(INSTANCING)
+            if parents[c] != -1:
+                raise AssetError(doc.path, f"node {c} is the child of more than one node (nodes {parents[c]} and {i})"
+                                 if parents[c] != i else f"node {i} lists node {c} as a child twice")
+            parents[c] = i
+        name = node.get("name") or f"node_{i}"
+        instancing = (node.get("extensions") or {}).get(INSTANCING)
         if isinstance(instancing, dict) and mesh is not None:
             # The node draws its mesh once per instance transform (applied before the node's own), never alone.
             first = len(gltf.nodes) + len(instances)
-            matrices = _instance_matrices(doc, instancing, i)
-            instances += [Node(f"{name}_instance_{k}", m, mesh) for k, m in enumerate(matrices)]
+            placed = _instance_matrices(doc, instancing, i)
+            instances += [Node(f"{name}_instance_{k}", m, mesh) for k, m in enumerate(placed)]
             children += tuple(range(first, len(gltf.nodes) + len(instances)))
             mesh = None
-        nodes.append(Node(name, _node_matrix(doc, node, i), mesh, children))
-    if len(parents) and parents.max() > 1:
-        raise AssetError(doc.path, f"node {int(parents.argmax())} is the child of more than one node")
+        nodes.append(Node(name, matrices[i], mesh, children))
+    _check_trees(doc, nodes, parents)
     return tuple(nodes + instances)
+
+
+def _check_trees(doc: _Document, nodes: list[Node], parents: list[int]) -> None:
+    """Refuse a cycle of child links, whether or not a scene reaches it: glTF 2.0 nodes form disjoint
+    strict trees, and a cycle would have every walk of the graph loop for ever.
+
+    With one parent per node (checked before), every node lies below a parentless one, except on or
+    below a cycle; a walk up from any node no root reaches comes back to a node on it. Linear time,
+    no recursion (a chain of 100,000 nodes is a legal tree)."""
+    reached = [False] * len(nodes)
+    stack = [i for i, p in enumerate(parents) if p == -1]
+    while stack:
+        i = stack.pop()
+        reached[i] = True
+        stack.extend(c for c in nodes[i].children if c < len(nodes))  # instances (past the file's nodes) are leaves
+    if all(reached):
+        return
+    i, seen = reached.index(False), set()
+    while i not in seen:
+        seen.add(i)
+        i = parents[i]
+    cycle, j = [i], parents[i]
+    while j != i:
+        cycle.append(j)
+        j = parents[j]
+    raise AssetError(doc.path, f"the node graph has a cycle through node {min(cycle)} ({len(cycle)} node"
+                               f"{'s' if len(cycle) > 1 else ''}); glTF 2.0 nodes form disjoint trees")
 
 
 def _instance_matrices(doc: _Document, ext: dict, i: int) -> list[np.ndarray]:
@@ -742,17 +929,16 @@ def _instance_matrices(doc: _Document, ext: dict, i: int) -> list[np.ndarray]:
     if len(counts) != 1:
         raise AssetError(doc.path, f"{where}: " + ("no instance attributes" if not counts else
                                                   f"attributes of different counts {sorted(counts)}"))
-    out = []
-    for k in range(counts.pop()):
-        m = np.eye(4)
-        q = read["ROTATION"][k] if "ROTATION" in read else np.array([0.0, 0.0, 0.0, 1.0])
-        m[:3, :3] = _quaternion_matrix(q) * (read["SCALE"][k] if "SCALE" in read else 1.0)
-        if "TRANSLATION" in read:
-            m[:3, 3] = read["TRANSLATION"][k]
-        if not np.isfinite(m).all():
-            raise AssetError(doc.path, f"{where}: instance {k} has a non-finite transform")
-        out.append(m)
-    return out
+    k = counts.pop()
+    matrices = np.tile(np.eye(4), (k, 1, 1))
+    rotation = read.get("ROTATION", np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)))
+    matrices[:, :3, :3] = _quaternion_matrices(rotation) * (read["SCALE"][:, None, :] if "SCALE" in read else 1.0)
+    if "TRANSLATION" in read:
+        matrices[:, :3, 3] = read["TRANSLATION"]
+    finite = np.isfinite(matrices).all(axis=(1, 2)) & np.isfinite(rotation).all(axis=1)
+    if not finite.all():
+        raise AssetError(doc.path, f"{where}: instance {int(np.argmin(finite))} has a non-finite transform")
+    return list(matrices)
 
 
 def _roots(doc: _Document, nodes: tuple[Node, ...]) -> tuple[int, ...]:
@@ -765,7 +951,7 @@ def _roots(doc: _Document, nodes: tuple[Node, ...]) -> tuple[int, ...]:
     roots = tuple(scene.nodes or ())
     for r in roots:
         _item(doc, gltf.nodes, r, "node")
-        # A root that is also a child could sit on a cycle; walking it would never end.
+        # glTF 2.0: a scene lists root nodes; a child listed too would be drawn twice, once out of its tree.
         if r in children:
             raise AssetError(doc.path, f"scene root node {r} is also the child of another node")
     return roots
@@ -796,9 +982,9 @@ def _texture_transform(doc: _Document, info, slot: str) -> TextureTransform | No
     return TextureTransform(offset, rotation, scale, tex_coord)
 
 
-def _material(doc: _Document, m: pygltflib.Material, i: int) -> SourceMaterial:
+def _material(doc: _Document, m: GltfObject, i: int) -> SourceMaterial:
     """glTF material terms; defaults are the glTF spec's (metallic 1, roughness 1)."""
-    pbr = m.pbrMetallicRoughness or pygltflib.PbrMetallicRoughness()
+    pbr = m.pbrMetallicRoughness or GltfObject()
     ext = m.extensions or {}
     base = tuple(float(x) for x in (pbr.baseColorFactor or (1.0, 1.0, 1.0, 1.0)))
     emissive = tuple(float(x) for x in (m.emissiveFactor or (0.0, 0.0, 0.0)))
@@ -836,7 +1022,7 @@ def _textures_and_images(doc: _Document) -> tuple[tuple[Texture, ...], tuple[Ima
     return tuple(replace(t, image=remap[t.image]) for t in textures), tuple(images[i] for i in keep)
 
 
-def _texture(doc: _Document, t: pygltflib.Texture, i: int) -> Texture:
+def _texture(doc: _Document, t: GltfObject, i: int) -> Texture:
     """Image and sampler state of a texture: its core (PNG/JPEG) source; a texture with only an extension's
     image (EXT_texture_webp, KHR_texture_basisu) is refused."""
     source = t.source
@@ -854,7 +1040,7 @@ def _texture(doc: _Document, t: pygltflib.Texture, i: int) -> Texture:
     return Texture(source, s.magFilter, s.minFilter, s.wrapS or 10497, s.wrapT or 10497)
 
 
-def _image(doc: _Document, im: pygltflib.Image, i: int) -> Image:
+def _image(doc: _Document, im: GltfObject, i: int) -> Image:
     """Encoded bytes of an image (GLB buffer view, data: URI or external file) and its media type."""
     uri_mime = None
     if im.bufferView is not None:

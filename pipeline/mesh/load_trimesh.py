@@ -67,7 +67,9 @@ def load_trimesh(path: str, confinement: Confinement | None = None) -> Scene:
     confinement = confinement or Confinement.for_asset(path)
     resolver = _ConfinedResolver(path, confinement, _obj_mtllib(data) if ext == ".obj" else "")
     try:
-        loaded = trimesh.load_scene(path, process=False, resolver=resolver, **kwargs)
+        # From the bytes already read: trimesh opens nothing itself, so it parses what was checked
+        # above, and names no mesh after a file name it could not encode (`_mesh_names`).
+        loaded = trimesh.load_scene(io.BytesIO(data), file_type=ext[1:], process=False, resolver=resolver, **kwargs)
     except (IndexError, OverflowError) as e:  # OverflowError: trimesh's int64 cast of an index past its range
         if ext == ".obj":
             raise AssetError(path, _obj_index_problem(data)) from e
@@ -79,6 +81,7 @@ def load_trimesh(path: str, confinement: Confinement | None = None) -> Scene:
         raise
     if resolver.refused is not None:
         raise resolver.refused
+    label = _mesh_names(loaded, ext, resolver.file_name)
     meshes: list[Mesh] = []
     names: dict[str, int] = {}
     materials: dict[str | int, int] = {}
@@ -99,7 +102,7 @@ def load_trimesh(path: str, confinement: Confinement | None = None) -> Scene:
                 material_list.append(_material(geom.visual.material, len(material_list), images))
             material = materials[key]
         names[name] = len(meshes)
-        meshes.append(Mesh(name, (_primitive(geom, material),)))
+        meshes.append(Mesh(label.get(name, name), (_primitive(geom, material),)))
     if not any(len(m.primitives[0].faces) for m in meshes):
         found = f"{points} vertices but no faces" if points else "no geometry"
         raise AssetError(path, f"no triangles: the file has {found}")
@@ -107,7 +110,7 @@ def load_trimesh(path: str, confinement: Confinement | None = None) -> Scene:
     for node_name in loaded.graph.nodes_geometry:
         matrix, geom_name = loaded.graph[node_name]
         if geom_name in names:
-            nodes.append(Node(str(node_name), np.asarray(matrix, np.float64), names[geom_name]))
+            nodes.append(Node(str(label.get(node_name, node_name)), np.asarray(matrix, np.float64), names[geom_name]))
     return Scene(
         source=path,
         meshes=tuple(meshes),
@@ -122,6 +125,13 @@ def load_trimesh(path: str, confinement: Confinement | None = None) -> Scene:
     )
 
 
+def _mesh_names(loaded: trimesh.Scene, ext: str, file_name: str) -> dict[str, str]:
+    """trimesh's name -> ours, for the one name that differs: trimesh names a PLY's or an STL's lone
+    unnamed geometry after the file it opened, and ``geometry_0`` when given bytes; ours is then the
+    file's name (`_ConfinedResolver.file_name`), as an OBJ's unnamed object gets from trimesh."""
+    return {"geometry_0": file_name} if ext != ".obj" and list(loaded.geometry) == ["geometry_0"] else {}
+
+
 class _ConfinedResolver(trimesh.resolvers.FilePathResolver):
     """trimesh's file resolver for an OBJ's ``mtllib`` and ``map_Kd`` and a PLY's ``TextureFile``,
     reading only what the confinement allows.
@@ -134,6 +144,9 @@ class _ConfinedResolver(trimesh.resolvers.FilePathResolver):
 
     def __init__(self, path: str, confinement: Confinement, mtllib: str):
         super().__init__(path)
+        # What an OBJ's unnamed object is named after (and `_mesh_names` a PLY's or STL's mesh):
+        # bytes of the name that are not UTF-8 as \xNN, since trimesh encodes names as UTF-8
+        self.file_name = os.fsencode(os.path.basename(path)).decode("utf-8", "backslashreplace")
         self.confinement = confinement
         self.mtllib = mtllib
         self.folders = tuple(dict.fromkeys([self.parent, os.path.dirname(os.path.realpath(path))]))

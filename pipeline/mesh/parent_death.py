@@ -5,6 +5,7 @@ from __future__ import annotations
 import ctypes
 import os
 import signal
+from multiprocessing import forkserver
 
 PR_SET_PDEATHSIG = 1
 
@@ -28,3 +29,20 @@ def die_with_parent(parent: int | None = None) -> None:
         return
     if parent is not None and os.getppid() != parent:
         os.kill(os.getpid(), signal.SIGKILL)
+
+
+def release_fork_server() -> None:
+    """In a child of multiprocessing's fork server: let go of the server, so that it ends with the
+    process that started it, and this child (`die_with_parent`: its parent is the server) with it.
+
+    The server ends when the write end of its "alive" pipe is closed everywhere, and each child it
+    forks inherits a copy: while a child lives, so does the server. A child waiting for the
+    server's death would then outlive a killed batch or Dask worker and bake on, unseen, holding
+    the batch's terminal (stdout and stderr). A no-op in any other process (the one that started
+    the server holds that end in its own right).
+    """
+    server = forkserver._forkserver  # the module's one server (CPython 3.4+)
+    if server._forkserver_pid is None and server._forkserver_alive_fd is not None:  # a child of a server
+        os.close(server._forkserver_alive_fd)
+        # as in a process with no server: one it needs is started afresh
+        server._forkserver_alive_fd = server._forkserver_address = None

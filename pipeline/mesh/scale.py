@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 
 from sssbake.pipeline.core.errors import AssetError
+from sssbake.pipeline.core.ranges import Range
 from sssbake.pipeline.mesh.scene import Scene
+
+#: Millimetres per file unit, a nanometre to a kilometre. What breaks is the object's size in mm:
+#: the 20-unit sample sphere bakes finite with every technique from 1e-9 to 1e12 mm per unit
+#: (below, a render's float32 image overflows by 1e-12 and the escape walk loses all light by 1e-20;
+#: above, embree's float32 coordinates overflow by 1e40), so the ends hold for objects from 0.1 to
+#: 1e5 units across.
+SCALE_MM = Range(1e-6, 1e6, "a 20-unit object bakes finite from 1e-9 to 1e12", "mm per file unit")
 
 
 def resolve_scale_mm(scene: Scene, scale_mm: float | None) -> tuple[float, str]:
@@ -16,7 +24,11 @@ def resolve_scale_mm(scene: Scene, scale_mm: float | None) -> tuple[float, str]:
     if scale_mm is not None:
         return float(scale_mm), "given"
     if scene.meters_per_unit is not None:
-        return 1000.0 * scene.meters_per_unit, "declared by the file"
+        declared = 1000.0 * scene.meters_per_unit
+        if declared not in SCALE_MM:  # as a given scale_mm would be refused
+            raise AssetError(scene.source, f"the file declares {declared:g} mm per unit, outside {SCALE_MM.text()}; "
+                                           "pass --scale-mm (millimetres per file unit) or set scale_mm in the config")
+        return declared, "declared by the file"
     raise AssetError(
         scene.source,
         "no scale: this format carries no unit; pass --scale-mm (millimetres per file unit) or set scale_mm in the config",

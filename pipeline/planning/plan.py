@@ -401,5 +401,7 @@ def decide(asset: str, mesh: str, name: str, material, deforming: bool, options:
                                       f"{budget:g} allowed; screen, nothing per vertex")
         return entry(("prt",), f"{why}; prt within {budget:g} bytes per vertex",
                      {"prt_byte_budget": float(budget), "prt_reference_floor": 0})
-    return entry(("screen",), f"thick and local: median thickness {thickness_mm / widest:.3g} diffusion lengths "
+    # thickness x σ_tr, not over the widest length 1/σ_tr: no quotient of a length that may round to 0
+    lengths = thickness_mm * float(np.maximum(sigma_tr, 1e-12).min())
+    return entry(("screen",), f"thick and local: median thickness {lengths:.3g} diffusion lengths "
                               f"({widest:.3g} mm); screen, nothing per vertex")

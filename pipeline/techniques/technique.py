@@ -67,6 +67,11 @@ class Technique:
         `options` with the fields its `bake` does not read under them set to their defaults: what
         the stage cache keys its bake on, so that changing such a field reruns nothing (default:
         `options` as they are).
+    check_bake(result: TechniqueBake, target: BakeTarget, options)
+        Raise (ValueError) unless `result`, read back from the stage cache, is what `bake` could
+        have made of `target` under `options`: the shapes and index ranges of its data and tables,
+        beyond the checks every technique's result gets (finite values, the data's own ``check()``,
+        per-vertex data over the surface: ``bake.stages``); default none.
 
     Verify and runtime hooks (``<Cls>Verify`` in ``verify.py``)
     ------------------------------------------------------------
@@ -141,6 +146,9 @@ class Technique:
     def stage_options(self, options):
         return options
 
+    def check_bake(self, result: TechniqueBake, target: BakeTarget, options) -> None:
+        return None
+
     def reference_item(self, path, unit: VerifyUnit, data: dict, runtime: dict, memo: dict) -> None:
         return None
 
@@ -162,6 +170,19 @@ class Technique:
 
     def __repr__(self) -> str:
         return f"<technique {self.name}>"
+
+
+def same_tables(a, b) -> bool:
+    """Whether two `TechniqueBake.tables` values are the same: dicts with the same keys in the same
+    order, arrays of the same dtype, shape and values, lists and tuples item by item, the rest ``==``."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return type(a) is type(b) and a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
+    if isinstance(a, dict):
+        return (type(b) is dict and list(a) == list(b)
+                and all(same_tables(x, b[k]) for k, x in a.items()))
+    if isinstance(a, (list, tuple)):
+        return type(a) is type(b) and len(a) == len(b) and all(same_tables(x, y) for x, y in zip(a, b))
+    return type(a) is type(b) and a == b
 
 
 @dataclass(frozen=True)

@@ -52,6 +52,10 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse:
         if record["status"] == "failed":
             sections.append(f'<div class="asset"><h2>{name}</h2><p class="failed">{html.escape(record["error"])}</p></div>')
             continue
+        if record["status"] == "same-file":
+            sections.append(f'<div class="asset"><h2>{name}</h2><p>another name of '
+                            f'{html.escape(record["same_as"])}, baked once under that name</p></div>')
+            continue
         glb = next(Path(p) for p in record["outputs"] if p.endswith(".glb"))
         report = json.loads(Path(next(p for p in record["outputs"] if p.endswith(".report.json"))).read_text())
         rows = []
@@ -92,7 +96,8 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse:
             f"{plot}{body}</body></html>")
     path = out_dir / "report.html"
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(page)
+        # as its charset says; a file name's bytes that are not UTF-8 (os.fsdecode's escapes) as \udcNN
+        Path(tmp).write_text(page, encoding="utf-8", errors="backslashreplace")
     return path
 
 

@@ -11,9 +11,7 @@ runtime), ``/runtime_shaders/…`` (the GLSL it compiles), ``/three/build/…`` 
 from __future__ import annotations
 
 import http.server
-import json
 import os
-import struct
 import threading
 import urllib.parse
 from pathlib import Path
@@ -44,31 +42,19 @@ class ViewError(SssbakeError):
 def check_glb(path: str | os.PathLike) -> dict:
     """The glTF JSON of a .glb that holds sssbake data; one-line `AssetError` otherwise.
 
-    Only the container is checked here (a GLB with the ``SSSBAKE_subsurface`` extension); whether its
-    tables are intact is the runtime's check, shown on the page, so that a stale file never renders.
+    The container and the JSON are checked as every command checks them (`load_sssbake_gltf`: each
+    GLB length field against the file's size, the JSON's nesting and shape); whether its tables are
+    intact is the runtime's check, shown on the page, so that a stale file never renders.
     """
     path = Path(path)
     if not path.is_file():
         raise AssetError(path, "no such file")
     if path.suffix.lower() != ".glb":
         raise AssetError(path, "view shows the .glb files sssbake bake writes")
-    with open(path, "rb") as f:
-        header = f.read(20)
-        if len(header) < 20 or header[:4] != b"glTF":
-            raise AssetError(path, "not a binary glTF (.glb) file")
-        json_length, chunk_type = struct.unpack("<II", header[12:20])
-        if chunk_type != 0x4E4F534A or json_length > path.stat().st_size:  # 'JSON'
-            raise AssetError(path, "not a binary glTF (.glb) file: no JSON chunk")
-        try:
-            gltf = json.loads(f.read(json_length))
-        except ValueError as e:
-            raise AssetError(path, f"unreadable glTF JSON: {e}") from None
-    if not isinstance(gltf, dict):
-        raise AssetError(path, "unreadable glTF JSON: not an object")
-    if EXTENSION in (gltf.get("extensions") or {}):
-        return gltf
-    load_sssbake_gltf(path)  # names the tool when it dropped the extension but kept sssbake's attributes
-    raise AssetError(path, f"no sssbake data (no {EXTENSION} extension); bake it with sssbake bake")
+    data = load_sssbake_gltf(path)  # names the tool when it dropped the extension but kept sssbake's attributes
+    if data.root is None:
+        raise AssetError(path, f"no sssbake data (no {EXTENSION} extension); bake it with sssbake bake")
+    return data.gltf
 
 
 def served_folders(checkouts: list[Path] | None = None) -> dict[str, Path]:

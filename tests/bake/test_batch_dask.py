@@ -1,5 +1,7 @@
 """The Dask backend (`--dask`): outputs byte-identical to the local pool's, a bad asset failing
-alone, a worker killed mid-asset retried, an asset that kills every worker a failed record."""
+alone, a worker killed mid-asset retried (its asset's child dying with it), an asset that kills
+every worker a failed record, nothing left running once a batch ends. Every wait is on the
+batch's progress (`waiting`), not on a time a quiet machine needs."""
 
 import json
 import logging
@@ -10,10 +12,12 @@ import time
 from pathlib import Path
 
 import distributed  # a dependency: never skipped
+import psutil
 import pytest
 import trimesh
 from fixtures import FAST_DEFAULTS
 from generate import blob, candle_scene
+from waiting import until_done
 
 from sssbake.exporters.gltf import write_glb
 from sssbake.pipeline.bake.batch import find_assets, run_batch
@@ -31,7 +35,6 @@ scale_mm = 1000.0
 "Wax*" = "skin1"
 "Brass" = "opaque"
 """
-BATCH_TIMEOUT_S = 150  # a hung batch fails the test instead of hanging the suite
 
 
 @pytest.fixture(scope="module")
@@ -64,26 +67,6 @@ def _slow_asset(path: Path) -> Path:
     return path
 
 
-def _within(timeout: float, fn, *args, **kwargs):
-    """`fn(*args, **kwargs)` in a daemon thread; fails the test when it takes longer than `timeout`."""
-    box = {}
-
-    def target():
-        try:
-            box["value"] = fn(*args, **kwargs)
-        except BaseException as e:  # re-raised in the test's thread
-            box["error"] = e
-
-    t = threading.Thread(target=target, daemon=True)
-    t.start()
-    t.join(timeout)
-    if t.is_alive():
-        pytest.fail(f"{getattr(fn, '__name__', fn)} still running after {timeout} s: the batch hangs")
-    if "error" in box:
-        raise box["error"]
-    return box["value"]
-
-
 def _executed(client) -> int:
     return sum(client.run(lambda dask_worker: dask_worker.state.executed_count).values())
 
@@ -95,8 +78,8 @@ def test_dask_outputs_match_the_local_pool(cluster, config, tmp_path):
                       progress=False)
     with distributed.Client(cluster, set_as_default=False) as client:
         before = _executed(client)
-        remote = _within(BATCH_TIMEOUT_S, run_batch, [src], tmp_path / "dask", config, {},
-                         cache_dir=str(tmp_path / "dask-cache"), progress=False, dask=cluster.scheduler_address)
+        remote = until_done(run_batch, [src], tmp_path / "dask", config, {},
+                            cache_dir=str(tmp_path / "dask-cache"), progress=False, dask=cluster.scheduler_address)
         # every asset ran as a task on the workers, not in this process
         assert _executed(client) - before == 3
     assert remote["ok"] == local["ok"] == 3 and remote["failed"] == 0
@@ -124,13 +107,13 @@ def test_an_asset_this_batch_baked_is_ok_even_when_a_rerun_finds_it_up_to_date(c
     before = (out / "clock").stat().st_mtime  # the filesystem's clock, as run_batch reads it
     run_batch([src], out, config, {}, cache_dir=None, progress=False)
     jobs = find_assets([src], out)
-    redone = _within(BATCH_TIMEOUT_S, run_on_dask, jobs, config, {}, None, cluster.scheduler_address, since=before)
+    redone = until_done(run_on_dask, jobs, config, {}, None, cluster.scheduler_address, since=before)
     assert [r["status"] for r in redone] == ["ok", "ok"]
     later = run_batch([src], out, config, {}, cache_dir=None, progress=False, dask=cluster.scheduler_address)
     assert [r["status"] for r in later["assets"]] == ["up-to-date", "up-to-date"]
 
 
-def test_bad_asset_fails_alone_on_a_local_cluster(tmp_path, monkeypatch, capsys):
+def test_bad_asset_fails_alone_on_a_local_cluster(cluster, tmp_path, monkeypatch, capfd):
     # Relative paths, as a user types them: the workers get absolute ones, the records keep these.
     monkeypatch.chdir(tmp_path)
     src = _small_assets(Path("in"))
@@ -138,9 +121,17 @@ def test_bad_asset_fails_alone_on_a_local_cluster(tmp_path, monkeypatch, capsys)
     Path("sssbake.toml").write_text(CONFIG)
     common = ["bake", "in", "--config", "sssbake.toml", "-q"]
     assert main(common + ["-o", "local"]) == 1
-    capsys.readouterr()
-    assert _within(BATCH_TIMEOUT_S, main, common + ["-o", "dask", "--dask", "local:2"]) == 1
-    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    capfd.readouterr()
+    before = {p.pid for p in psutil.Process().children(recursive=True)}  # the module's cluster and fork server
+    assert until_done(main, common + ["-o", "dask", "--dask", "local:2"]) == 1
+    # Nothing of its cluster outlives the batch to keep the command from exiting (the interpreter
+    # waits for worker processes that are not daemonic, and for threads that are not) or to hold its
+    # output open
+    assert [p for p in psutil.Process().children(recursive=True) if p.pid not in before] == []
+    assert [t.name for t in threading.enumerate() if not t.daemon] == ["MainThread"]
+    err = capfd.readouterr().err
+    assert "Traceback" not in err
+    err = [line for line in err.splitlines() if line.startswith("error:")]
     local = json.loads(Path("local/batch.json").read_text())["assets"]
     remote = json.loads(Path("dask/batch.json").read_text())["assets"]
     assert [(r["asset"], r["status"]) for r in remote] == [
@@ -162,7 +153,7 @@ def test_dask_flag_errors_are_one_line(tmp_path, capsys):
     assert main(base + ["--dask", "local:0"]) == 2
     assert "local:N, N >= 1" in capsys.readouterr().err
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        assert _within(60, main, base + ["--dask", "tcp://127.0.0.1:9"]) == 2  # nothing listens on port 9
+        assert until_done(main, base + ["--dask", "tcp://127.0.0.1:9"]) == 2  # nothing listens on port 9
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.startswith("error: --dask tcp://127.0.0.1:9: cannot reach the Dask scheduler")
 
@@ -170,19 +161,22 @@ def test_dask_flag_errors_are_one_line(tmp_path, capsys):
 class _Killer(threading.Thread):
     """SIGKILLs the worker process executing the batch's task `index`, at most `times` times; then
     notes the worker processes seen executing it again. Also notes the most tasks of the batch the
-    scheduler had out on workers at once.
+    scheduler had out on workers at once, and for each process of an asset (an asset's child, in a
+    session of its own, and what it started) under a killed worker, whether `report` existed by the
+    time it was gone.
 
     Reads the in-process LocalCluster's own state (the scheduler's view of each worker, which its
     heartbeats refresh twice a second, and the nannies' worker pids): a call to the workers could
     wait on a dead one for the connect timeout and miss what happens meanwhile.
     """
 
-    def __init__(self, cluster, index: int, times: int):
+    def __init__(self, cluster, index: int, times: int, report: Path):
         super().__init__(daemon=True)
-        self.cluster, self.index, self.times = cluster, index, times
+        self.cluster, self.index, self.times, self.report = cluster, index, times, report
         self.killed: list[int] = []
         self.seen_after: list[int] = []
         self.most_out = 0
+        self.orphans: dict[int, bool | None] = {}  # pid -> whether the report existed when it was gone
         self.stop = threading.Event()
 
     def run(self):
@@ -202,44 +196,62 @@ class _Killer(threading.Thread):
                         and ts.processing_on is ws for ts in list(ws.executing)):
                     continue
                 if len(self.killed) < self.times:
+                    try:
+                        under = [p.pid for p in psutil.Process(pid).children(recursive=True)
+                                 if _session(p.pid) not in (os.getsid(0), None)]
+                    except psutil.NoSuchProcess:
+                        continue
+                    if not under:  # its asset's child not started yet: killed mid-bake, the worker leaves one
+                        continue
                     os.kill(pid, signal.SIGKILL)
                     self.killed.append(pid)
+                    self.orphans.update(dict.fromkeys(under))
                 elif pid not in self.seen_after:
                     self.seen_after.append(pid)
+            for orphan in [p for p, report in self.orphans.items() if report is None and _gone(p)]:
+                self.orphans[orphan] = self.report.exists()
             time.sleep(0.02)
+
+
+def _session(pid: int) -> int | None:
+    try:
+        return os.getsid(pid)
+    except ProcessLookupError:
+        return None
+
+
+def _gone(pid: int) -> bool:
+    """Whether process `pid` has ended (a zombie not yet reaped by its parent has)."""
+    try:
+        return psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return True
 
 
 def _bake_with_killer(cluster, config, src: Path, out: Path, victim: str, times: int):
     index = [j.rel for j in find_assets([src], out)].index(victim)
-    killer = _Killer(cluster, index, times)
+    killer = _Killer(cluster, index, times, out / Path(victim).with_suffix(".report.json"))
     killer.start()
     try:
-        summary = _within(BATCH_TIMEOUT_S, run_batch, [src], out, config, {}, cache_dir=str(out / ".sssbake-cache"),
-                          progress=False, dask=cluster.scheduler_address)
+        summary = until_done(run_batch, [src], out, config, {}, cache_dir=str(out / ".sssbake-cache"),
+                             progress=False, dask=cluster.scheduler_address)
     finally:
         killer.stop.set()
-        killer.join(10)
+        killer.join()
     return summary, killer
 
 
-def _dead(pid: int, wait_s: float = 10.0) -> bool:
-    """Whether process `pid` is gone (its nanny may take a moment to reap it)."""
-    deadline = time.monotonic() + wait_s
-    while time.monotonic() < deadline:
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return True
-        time.sleep(0.05)
-    return False
-
-
-def test_worker_killed_mid_asset_is_retried(cluster, config, tmp_path):
+def test_worker_killed_mid_asset_is_retried(cluster, config, tmp_path, capfd):
     src = _small_assets(tmp_path / "in")
     _slow_asset(src / "slow.obj")
     summary, killer = _bake_with_killer(cluster, config, src, tmp_path / "out", "slow.obj", times=1)
-    assert len(killer.killed) == 1 and _dead(killer.killed[0]), (killer.killed, summary)
+    assert len(killer.killed) == 1 and _gone(killer.killed[0]), (killer.killed, summary)
     assert killer.seen_after, "the killed worker's asset never ran again"
+    # Its asset's child died with it, before the asset's retry was done: it did not bake on unseen,
+    # racing the retry for the same outputs, holding the batch's output open and failing on the
+    # folder the retry's supervisor swept.
+    assert killer.orphans and set(killer.orphans.values()) == {False}, killer.orphans
+    assert "Traceback" not in capfd.readouterr().err
     # never more assets out than worker threads: a death costs only the asset that was running
     assert 1 <= killer.most_out <= 2
     assert [(Path(r["asset"]).name, r["status"]) for r in summary["assets"]] == [
@@ -274,8 +286,8 @@ def test_dask_applies_the_asset_limits(cluster, config, tmp_path):
     limited = replace(config, assets=config.assets + ({"glob": "slow.obj", "asset_timeout_s": 1.0},))
     out = tmp_path / "out"
     workers = {n.pid for n in cluster.workers.values()}
-    summary = _within(BATCH_TIMEOUT_S, run_batch, [src], out, limited, {}, cache_dir=None, progress=False,
-                      dask=cluster.scheduler_address)
+    summary = until_done(run_batch, [src], out, limited, {}, cache_dir=None, progress=False,
+                         dask=cluster.scheduler_address)
     slow, *rest = summary["assets"]
     assert slow["status"] == "failed" and slow["outputs"] == []
     assert slow["error"] == f"{src / 'slow.obj'}: exceeded 1 s; raise --asset-timeout (or asset_timeout_s in the config)"

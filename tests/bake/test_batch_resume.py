@@ -1,5 +1,6 @@
-"""Resume: a batch killed with SIGKILL and run again redoes only the unfinished assets, and the
-temporary files a killed batch leaves are swept, ours only, and never under a live batch."""
+"""Resume: a batch killed with SIGKILL, or stopped by Ctrl-C, and run again redoes only the
+unfinished assets, and the temporary files a killed batch leaves are swept, ours only, and never
+under a live batch. Ctrl-C ends a batch with one line, killing its workers and their temporaries."""
 
 import fcntl
 import json
@@ -10,12 +11,15 @@ import sys
 import time
 from pathlib import Path
 
+import psutil
 import trimesh
 from fixtures import FAST_DEFAULTS
 from generate import blob
+from waiting import finish, wait_for
 
 from sssbake.exporters.atomic import atomic_path, temporary_target
 from sssbake.pipeline.bake.batch import LOCK_NAME, STALE_AFTER_S, run_batch, sweep_temporaries
+from sssbake.pipeline.bake.staging import is_staging
 from sssbake.pipeline.config import EMPTY_CONFIG
 
 CONFIG = FAST_DEFAULTS
@@ -117,20 +121,17 @@ def test_killed_batch_resumes_where_it_stopped(tmp_path):
     config = tmp_path / "sssbake.toml"
     config.write_text(CONFIG)
     proc = subprocess.Popen(_bake_command(src, out, config), start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 120
-        while not (out / f"{names[0]}.report.json").exists():  # the last of an asset's outputs
-            assert proc.poll() is None, proc.stderr.read().decode()
-            assert time.monotonic() < deadline, "the first asset never finished"
-            time.sleep(0.005)
+        # the last of an asset's outputs
+        wait_for((out / f"{names[0]}.report.json").exists, proc, "the batch's first asset")
         # Kill while the next asset bakes, at a temporary file if one shows within a moment.
         until = time.monotonic() + 0.5
         while time.monotonic() < until and not _temporaries(out) and not (out / f"{names[1]}.glb").exists():
             time.sleep(0.001)
     finally:
         os.killpg(proc.pid, signal.SIGKILL)  # the batch and its helpers (xatlas, the validator)
-        proc.wait(10)
+        proc.wait()
     assert proc.returncode == -signal.SIGKILL
     assert not (out / "batch.json").exists(), "the batch finished before the kill"
     assert not any((out / f"{n}.report.json").exists() for n in names[1:])
@@ -138,18 +139,63 @@ def test_killed_batch_resumes_where_it_stopped(tmp_path):
     _plant(out, [f".{names[1]}.glb.k2_9xq0a.tmp.glb", f".{names[1]}.usdc.k2_9xq0a.tmp.Ab3dE9",
                  ".sssbake-cache/ab/tmpq1w2e3r4.tmp"], age_s=60)
 
-    again = subprocess.run(_bake_command(src, out, config), capture_output=True, text=True, timeout=180)
-    assert again.returncode == 0, again.stderr
+    again = subprocess.Popen(_bake_command(src, out, config), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _, err = finish(again, "the batch run again")
+    assert again.returncode == 0, err
     batch = json.loads((out / "batch.json").read_text())
     assert [(Path(r["asset"]).stem, r["status"]) for r in batch["assets"]] == [
         (names[0], "up-to-date")] + [(n, "ok") for n in names[1:]]
     assert batch["temporaries_removed"] >= 3
     assert _temporaries(out) == []
 
-    assert subprocess.run(_bake_command(src, clean, config), capture_output=True, timeout=180).returncode == 0
+    clean_run = subprocess.Popen(_bake_command(src, clean, config), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                 text=True)
+    finish(clean_run, "a clean batch")
+    assert clean_run.returncode == 0
     for n in names:
         for suffix in (".glb", ".usdc"):
             assert (out / f"{n}{suffix}").read_bytes() == (clean / f"{n}{suffix}").read_bytes(), f"{n}{suffix}"
+
+
+def test_ctrl_c_stops_the_batch_in_one_line_and_the_rerun_skips_what_was_done(tmp_path):
+    from sssbake.pipeline.cli import main
+
+    src, out, tmp = tmp_path / "in", tmp_path / "out", tmp_path / "tmp"
+    names = _assets(src)
+    tmp.mkdir()
+    config = tmp_path / "sssbake.toml"
+    config.write_text(CONFIG)
+    command = _bake_command(src, out, config) + ["--jobs", "2", "--no-validate"]
+    # TMPDIR: where the assets' workers get their private folders, to be seen removed
+    proc = subprocess.Popen(command, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "TMPDIR": str(tmp)})
+    try:
+        wait_for(lambda: any(out.glob("*.report.json")), proc, "the batch's first asset")
+        # an asset's worker leads a session of its own, with what it started (xatlas, the validator)
+        workers = [p for p in psutil.Process(proc.pid).children(recursive=True) if os.getsid(p.pid) != proc.pid]
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: the terminal signals the whole foreground process group
+        _, err = finish(proc, "the interrupted batch")  # its output closes: the fork server is gone too
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    done = sorted(p.name.removesuffix(".report.json") for p in out.glob("*.report.json"))
+    assert 1 <= len(done) < len(names)
+    # one line, and no traceback from any process (the batch, its fork server, its workers)
+    assert err.splitlines() == [f"error: interrupted by SIGINT: {len(done)} baked, 0 failed, {len(names) - len(done)} "
+                                "not baked; run the same command again to bake the rest"]
+    assert proc.returncode == 128 + signal.SIGINT
+    assert workers and all(not p.is_running() or p.status() == psutil.STATUS_ZOMBIE for p in workers)
+    assert _temporaries(out) == [] and not [p for p in out.rglob("*") if is_staging(p.name)]
+    assert list(tmp.iterdir()) == [] and not (out / "batch.json").exists()
+
+    # every asset whose outputs were all written is up to date (baking the rest again is the test above's)
+    for path in src.iterdir():
+        if path.stem not in done:
+            path.unlink()
+    assert main(command[3:]) == 0
+    batch = json.loads((out / "batch.json").read_text())
+    assert [(Path(r["asset"]).stem, r["status"]) for r in batch["assets"]] == [(n, "up-to-date") for n in done]
 
 
 def test_a_missing_thickness_texture_rebakes_the_asset(tmp_path):

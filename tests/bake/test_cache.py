@@ -1,8 +1,10 @@
 import dataclasses
+import errno
 import hashlib
 import io
 import json
 import math
+import os
 import pickle
 from pathlib import Path
 
@@ -14,9 +16,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from sssbake.pipeline.bake import cache as cache_module
 from sssbake.pipeline.bake.asset import bake_asset
-from sssbake.pipeline.bake.cache import MAGIC, StageCache, stage_key
+from sssbake.pipeline.bake.cache import MAGIC, StageCache, stage_key, temporaries
 from sssbake.pipeline.bake.cache_codec import CacheFormatError, dumps, loads
+from sssbake.pipeline.bake.os_errors import os_error_line
 from sssbake.pipeline.bake.stages import StageRunner
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.mesh.digest import file_digest
@@ -381,3 +385,56 @@ def test_an_old_pickle_entry_is_never_loaded_and_is_recomputed(tmp_path):
     assert runner.run("stage", 1, "up", None, lambda: "again")[0] == "again"
     assert runner.records["stage"].corrupt == 1 and not marker.exists()
     assert StageCache(tmp_path / "cache").get(key) == "again"
+
+
+# --- a cache folder that cannot take an entry ---------------------------------------------------------
+
+
+class FailingTempfile:
+    """A `tempfile` for the cache module whose mkstemp gives a file every write to fails with ENOSPC
+    (/dev/full), or fails itself with `code`; `tries` counts its calls."""
+
+    def __init__(self, code: int):
+        self.code, self.tries = code, 0
+
+    def mkstemp(self, dir, prefix, suffix):
+        self.tries += 1
+        if self.code == errno.ENOSPC:
+            return os.open("/dev/full", os.O_WRONLY), str(Path(dir) / f"{prefix}full1234{suffix}")
+        raise OSError(self.code, os.strerror(self.code), str(Path(dir) / f"{prefix}denied12{suffix}"))
+
+
+@pytest.mark.parametrize("code, problem", [
+    (errno.ENOSPC,
+     "No space left on device; free some space or give --cache-dir a folder on another disk, or --no-cache"),
+    (errno.EACCES, "{file}: Permission denied; give --cache-dir a folder you may write, or --no-cache"),
+])
+def test_a_cache_that_cannot_take_an_entry_is_warned_of_once_and_the_stages_go_on(tmp_path, monkeypatch, code, problem):
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full")
+    failing = FailingTempfile(code)
+    monkeypatch.setattr(cache_module, "tempfile", failing)
+    runner = StageRunner(StageCache(tmp_path))
+    assert runner.run("first", 1, "up", None, lambda: 1.5)[0] == 1.5
+    assert runner.run("second", 1, "up", None, lambda: 2.5)[0] == 2.5
+    assert failing.tries == 1  # not tried again for this bake
+    shard = tmp_path / stage_key("up", "first", 1, None)[:2]
+    assert runner.warnings == [f"stage cache: first and the stages after it not stored: {tmp_path}: "
+                               + problem.format(file=shard / "tmpdenied12.tmp")]
+    assert not list(temporaries(tmp_path)) and not list(tmp_path.rglob("*.entry"))
+
+
+def test_os_error_lines_name_the_option_of_the_folder():
+    full = OSError(errno.ENOSPC, "No space left on device")
+    denied = OSError(errno.EROFS, "Read-only file system", "/c/x")
+    assert os_error_line(Path("/o"), full) == (
+        "/o: No space left on device; free some space or give -o a folder on another disk")
+    assert os_error_line(Path("/c"), denied, "--cache-dir") == (
+        "/c: /c/x: Read-only file system; give --cache-dir a folder you may write, or --no-cache")
+    # a bake's staging folder, and a temporary in it, are named as the folder and the output they are for
+    staged = "/o/.sssbake-staging.ab_d1234"
+    assert os_error_line(Path("/a.obj"), OSError(errno.EACCES, "Permission denied", staged)) == (
+        "/a.obj: /o: Permission denied; give -o a folder you may write")
+    assert os_error_line(Path("/a.obj"), OSError(errno.ENOSPC, "No space left on device",
+                                                 f"{staged}/.a.glb.k2_9xq0a.tmp.glb")) == (
+        "/a.obj: /o/a.glb: No space left on device; free some space or give -o a folder on another disk")

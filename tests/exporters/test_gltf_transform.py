@@ -109,7 +109,7 @@ def _vertices(data: SssbakeGltf, mesh: int, prim: int) -> tuple[np.ndarray, np.n
     and its (t, 3) triangles."""
     p = data.gltf.meshes[mesh].primitives[prim]
     cols = []
-    for name, index in sorted((k, v) for k, v in vars(p.attributes).items() if v is not None):
+    for name, index in sorted((k, v) for k, v in p.attributes.items() if v is not None):
         if name.startswith("_"):
             values = data.attribute(mesh, prim, name)
         else:

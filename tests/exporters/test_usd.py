@@ -367,3 +367,110 @@ def test_each_encoding_reads_back_as_gltf_decodes_it(tmp_path, encoding, k, usd_
     if usd_type.startswith("float"):  # float32 values: the decoded codes rounded once more
         expected = expected.astype(np.float32)
     np.testing.assert_array_equal(primvar_values(pv), expected)
+
+
+def test_a_deep_hierarchy_is_cut_at_max_depth_and_keeps_world_transforms(tmp_path):
+    """A 3,000-node chain with a mesh at nodes on both sides of the cut and at the leaf: no node level
+    past `MAX_USD_DEPTH` (deeper nodes sit beside their ancestor at that level), every node written, and
+    each mesh's world transform as USD composes it is the scene's, bit for bit (quarter-turns, halvings,
+    doublings and quarter-unit translations: every product is exact, so a wrong order of composition shows)."""
+    from sssbake.exporters.usd import MAX_USD_DEPTH
+
+    n = 3000
+    turn = np.array([[0.0, -1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    matrices = []
+    for i in range(n):
+        m = turn.copy() if i % 5 == 0 else np.eye(4)
+        m[:3, :3] *= 2.0 if i % 11 == 0 else 0.5 if i % 11 == 5 else 1.0
+        m[:3, 3] = (i % 7 - 3.0, 0.25 * (i % 2), -0.5 * (i % 3))
+        matrices.append(m)
+    with_mesh = {MAX_USD_DEPTH - 2, MAX_USD_DEPTH - 1, MAX_USD_DEPTH, MAX_USD_DEPTH + 1, 1000, 2500, n - 1}
+    tri = Primitive(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
+    nodes = tuple(Node(f"link{i}", matrices[i], mesh=0 if i in with_mesh else None,
+                       children=(i + 1,) if i + 1 < n else ()) for i in range(n))
+    scene = Scene(source="memory", meshes=(Mesh("tri", (tri,)),), nodes=nodes, roots=(0,), materials=())
+    write_usdc(BakedAsset(scene=scene, vertex_attributes={}, scattering={}, scale_mm={}, extras={}),
+               tmp_path / "chain.usdc")
+
+    stage = Usd.Stage.Open(str(tmp_path / "chain.usdc"))
+    xforms = [p for p in stage.Traverse() if p.IsA(UsdGeom.Xform) and p != stage.GetDefaultPrim()]
+    assert len(xforms) == n
+    assert max(p.GetPath().pathElementCount for p in xforms) == 1 + MAX_USD_DEPTH  # the root prim's level, then nodes
+    world = np.eye(4)
+    worlds = []
+    for m in matrices:
+        world = world @ m
+        worlds.append(world)
+    meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    assert sorted(int(p.GetParent().GetName().removeprefix("link")) for p in meshes) == sorted(with_mesh)
+    for prim in meshes:
+        i = int(prim.GetParent().GetName().removeprefix("link"))
+        usd = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+        np.testing.assert_array_equal(usd.T, worlds[i], err_msg=f"node {i}")
+
+
+def test_a_deep_chain_bakes_with_its_world_transform_in_both_outputs(tmp_path, capsys):
+    """`sssbake bake` of a 3,000-node glTF chain (its mesh at the leaf): rc 0, and the mesh's world
+    transform in the .usdc and the .glb is the sum of the translations."""
+    from bad_inputs import node_chain_gltf
+    from fixtures import FAST_DEFAULTS
+
+    from sssbake.pipeline.cli import main
+    from sssbake.pipeline.mesh.load import load_scene
+
+    i = np.arange(3000)
+    translations = np.column_stack([i % 7 - 3.0, 0.25 * (i % 2), -0.5 * (i % 3)])
+    src, out = tmp_path / "in", tmp_path / "out"
+    src.mkdir()
+    (src / "chain.gltf").write_text(json.dumps(node_chain_gltf(translations)))
+    (tmp_path / "fast.toml").write_text(FAST_DEFAULTS)
+    assert main(["bake", str(src), "-o", str(out), "--config", str(tmp_path / "fast.toml"), "--no-cache", "-q"]) == 0
+    expected = np.eye(4)
+    expected[:3, 3] = translations.sum(axis=0)
+
+    stage = Usd.Stage.Open(str(out / "chain.usdc"))
+    (mesh,) = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    usd = np.array(UsdGeom.Xformable(mesh).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+    np.testing.assert_array_equal(usd.T, expected)
+    ((world,),) = load_scene(out / "chain.glb").mesh_instances().values()
+    np.testing.assert_array_equal(world, expected)
+
+
+def test_tampered_table_references_are_stale_data_in_one_line(tmp_path):
+    """``sss:extras`` rewritten by another tool: each field of a table reference swapped for every JSON
+    type or deleted, the JSON no object, the table's customData dtype no dtype. `technique_tables`
+    refuses with a one-line StaleDataError naming the prim (or reads on, where the reference stays
+    whole), never another exception."""
+    from sssbake.exporters.usd import technique_tables
+    from sssbake.pipeline.core.errors import StaleDataError
+
+    asset = replace(icosphere_asset(), mesh_extras={0: {"prt": {"codes": np.arange(6).reshape(2, 3), "order": 2}}})
+    write_usdc(asset, tmp_path / "m.usdc")
+    stage = Usd.Stage.Open(str(tmp_path / "m.usdc"))
+    prim = stage.GetPrimAtPath("/m/root/sphere")
+    extras = prim.GetAttribute("sss:extras")
+    good = json.loads(extras.Get())
+    cases = {"a list": json.dumps([good]), "no JSON": "{", "a number": "7"}
+    for field in good["prt"]["codes"]:
+        for value in (None, True, -1, 2.5, 2**64, "x", "x y", [], [-1, 6], [[2, 3]], {}, "deleted"):
+            changed = json.loads(json.dumps(good))
+            if value == "deleted":
+                del changed["prt"]["codes"][field]
+            else:
+                changed["prt"]["codes"][field] = value
+            cases[f"{field} {value!r}"] = json.dumps(changed)
+    read_on = []
+    for case, text in cases.items():
+        extras.Set(text)
+        try:
+            technique_tables(prim, "prt")
+        except StaleDataError as e:
+            assert "\n" not in str(e) and "/m/root/sphere" in str(e), str(e)
+        else:
+            read_on.append(case)
+    # without its attribute or crc32 a reference is a plain object: the technique's reader refuses it
+    assert read_on == ["attribute 'deleted'", "crc32 'deleted'"]
+    extras.Set(json.dumps(good))
+    prim.GetAttribute("sss:prt:codes").SetCustomDataByKey("dtype", "no such dtype")
+    with pytest.raises(StaleDataError, match="customData dtype 'no such dtype'"):
+        technique_tables(prim, "prt")

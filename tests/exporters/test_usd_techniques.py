@@ -143,11 +143,12 @@ def test_tables_are_typed_by_their_shapes(baked):
 def test_thickness_texture_and_surfaces(baked):
     glb, usdc = baked
     png = usdc.with_name("ball.thickness0.png")
-    gltf = load_sssbake_gltf(glb).gltf
+    data = load_sssbake_gltf(glb)
+    gltf = data.gltf
     volume = gltf.materials[0].extensions["KHR_materials_volume"]
     image = gltf.images[gltf.textures[volume["thicknessTexture"]["index"]].source]
     view = gltf.bufferViews[image.bufferView]
-    assert png.read_bytes() == gltf.binary_blob()[view.byteOffset: view.byteOffset + view.byteLength]
+    assert png.read_bytes() == data.blob[view.byteOffset: view.byteOffset + view.byteLength]
 
     stage = Usd.Stage.Open(str(usdc))
     (material,) = [UsdShade.Material(p) for p in stage.Traverse() if p.IsA(UsdShade.Material)]

@@ -259,8 +259,13 @@ def _one_mesh(tmp_path, name: str, **edits) -> Path:
 
 
 @pytest.mark.parametrize("edits, needle", [
-    ({"nodes": [{"mesh": 0, "children": [1]}, {"children": [1]}]}, "child of more than one node"),
-    ({"nodes": [{"mesh": 0, "children": [0]}], "scenes": [{"nodes": [0]}]}, "also the child"),
+    ({"nodes": [{"mesh": 0, "children": [1]}, {"children": [1]}]},
+     "node 1 is the child of more than one node (nodes 0 and 1)"),
+    ({"nodes": [{"mesh": 0, "children": [1, 1]}, {}]}, "node 0 lists node 1 as a child twice"),
+    ({"nodes": [{"mesh": 0, "children": [1]}, {}], "scenes": [{"nodes": [0, 1]}]},
+     "scene root node 1 is also the child of another node"),
+    ({"nodes": [{"mesh": 0, "children": [0]}], "scenes": [{"nodes": [0]}]},
+     "the node graph has a cycle through node 0"),
     ({"nodes": [{"mesh": 3}]}, "mesh index 3 out of range"),
     ({"scene": 2, "scenes": [{"nodes": [0]}]}, "scene index 2 out of range"),
     ({"nodes": [{"mesh": 0, "matrix": [1, 0, 0]}]}, "malformed transform"),
@@ -280,7 +285,20 @@ def _one_mesh(tmp_path, name: str, **edits) -> Path:
      "baseColor texture: malformed KHR_texture_transform"),
     ({"nodes": [{"mesh": 0, "extensions": {"EXT_mesh_gpu_instancing": {"attributes": {}}}}]},
      "node 0 EXT_mesh_gpu_instancing: no instance attributes"),
-    ({"nodes": 5}, "invalid glTF structure"),
+    ({"nodes": 5}, "nodes is 5, not an array"),
+    ({"nodes": [{"mesh": 0, "children": "1"}]}, "node 0: children is '1', not an array"),
+    ({"meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "targets": [3]}]}]},
+     "mesh 0 primitive 0: morph target 0 is 3, not an object"),
+    ({"accessors": [{"sparse": {"count": 1, "indices": [], "values": {}}}]},
+     "accessor 0 sparse: indices is [], not an object"),
+    ({"extensionsUsed": [["KHR_mesh_quantization"]]}, "extensionsUsed[0] is ['KHR_mesh_quantization'], not a string"),
+    ({"nodes": [{"mesh": 0, "extensions": []}]}, "node 0: extensions is [], not an object"),
+    ({"nodes": [{"mesh": 0, "rotation": [0, 0, 1]}]},
+     "node 0 has a malformed transform (rotation is [0, 0, 1], not 4 numbers)"),
+    ({"nodes": [{"mesh": 0, "translation": [0, "x", 1]}]},
+     "node 0 has a malformed transform (translation is [0, 'x', 1], not 3 numbers)"),
+    ({"nodes": [{}, {"mesh": 0, "scale": [1, 10**400, 1]}]}, "node 1 has a malformed transform (scale is an array, not 3"),
+    ({"nodes": [{"mesh": 0, "matrix": [float("nan")] * 16}]}, "node 0 has a non-finite transform"),
 ])
 def test_structural_errors(tmp_path, edits, needle):
     path = _one_mesh(tmp_path, "bad.gltf", **edits)

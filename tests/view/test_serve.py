@@ -116,8 +116,8 @@ def test_check_glb_refuses_what_has_no_sssbake_data(tmp_path):
     cases = {
         "missing.glb": (None, "no such file"),
         "model.gltf": (b"{}", "view shows the .glb files"),
-        "text.glb": (b"hello, this is not a glb file", "not a binary glTF"),
-        "short.glb": (b"glTF", "not a binary glTF"),
+        "text.glb": (b"hello, this is not a glb file", "not a GLB file: bad magic b'hell'"),
+        "short.glb": (b"glTF", "truncated file: 4 bytes, shorter than the 12-byte GLB header"),
         "plain.glb": ({"asset": {"version": "2.0"}}, "no sssbake data (no SSSBAKE_subsurface extension)"),
         "old.glb": ({"asset": {"version": "2.0"}, "extras": {"sssbake": {"schemaVersion": "1.4.0"}}},
                     "written by sssbake schema 1.x (extras.sssbake); rebake it with this version"),

@@ -228,10 +228,44 @@ def _table(tables: dict, name: str, shape: tuple[int, ...], dtype) -> np.ndarray
         if shape[0]:
             raise KernelsDataError(f"kernels: table {name} is missing")
         return np.zeros(shape, dtype=dtype)
-    values = np.asarray(tables[name])
+    values = tables[name]
+    if not isinstance(values, np.ndarray) or values.dtype.kind not in "fiu":
+        # a number or list in the JSON instead of the reference to a table the exporters write
+        raise KernelsDataError(f"kernels: {name} must be a table of numbers, got {type(values).__name__} "
+                               f"{str(values)[:40]}")
     if values.size != int(np.prod(shape)):
         raise KernelsDataError(f"kernels: table {name} holds {values.size} values, expected shape {shape}")
-    return values.reshape(shape).astype(dtype)
+    if np.dtype(dtype).kind in "iu" and values.dtype.kind == "f" and not np.all(values == np.rint(values)):
+        raise KernelsDataError(f"kernels: table {name} must hold whole numbers")
+    with np.errstate(over="ignore", invalid="ignore"):  # what does not fit is refused by `KernelsData.check`
+        return values.reshape(shape).astype(dtype)
+
+
+def _count(tables: dict, name: str) -> int:
+    """``tables[name]``: a JSON number that is a whole number in [0, 2^31 - 1]."""
+    if name not in tables:
+        raise KernelsDataError(f"kernels: {name} is missing")
+    value, top = tables[name], np.iinfo(np.int32).max
+    # range first: it also refuses NaN and ±Inf, which int() cannot take
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= top or value != int(value):
+        raise KernelsDataError(f"kernels: {name} must be a whole number in [0, {top}], got {str(value)[:40]}")
+    return int(value)
+
+
+def vertex_attribute_name(tables: dict) -> str:
+    """The per-vertex attribute a kernels block names (``attributes.vertex``).
+
+    Raises
+    ------
+    KernelsDataError
+        The block is not a JSON object, or does not name the attribute with a string.
+    """
+    if not isinstance(tables, dict):
+        raise KernelsDataError(f"kernels: the kernels block must be a JSON object, got {str(tables)[:40]}")
+    names = tables.get("attributes")
+    if not isinstance(names, dict) or not isinstance(names.get("vertex"), str):
+        raise KernelsDataError(f"kernels: attributes must name the vertex attribute, got {str(names)[:60]}")
+    return names["vertex"]
 
 
 def kernels_data_from_tables(tables: dict) -> KernelsData:
@@ -246,17 +280,22 @@ def kernels_data_from_tables(tables: dict) -> KernelsData:
     Returns
     -------
     KernelsData
-        Checked; raises KernelsDataError when the tables do not form valid data.
+        Checked; raises KernelsDataError when the tables do not form valid data (a parameter
+        missing or not a count, a table missing, inline in the JSON, of the wrong size or values).
     """
-    k = int(tables["kernelSize"])
-    n, s = int(tables["vertexCount"]), int(tables["texelCount"])
-    nnz, b = int(tables["nnz"]), int(tables["borderCount"])
-    bits = int(tables["kernelBits"])
+    vertex_attribute_name(tables)  # a JSON object that names its attribute: the reader's first check
+    k = _count(tables, "kernelSize")
+    n, s = _count(tables, "vertexCount"), _count(tables, "texelCount")
+    nnz, b = _count(tables, "nnz"), _count(tables, "borderCount")
+    bits = _count(tables, "kernelBits")
+    if bits not in KERNEL_BITS:
+        raise KernelsDataError(f"kernels: kernelBits must be 8 or 16, got {bits}")
+    surface = _count(tables, "surfaceVertexCount")
     codes = _table(tables, "kernelCodes", (s, k * k, 3), np.int64)
     scales = _table(tables, "kernelScales", (s, 3), np.float32)
     data = KernelsData(
-        width=int(tables["width"]),
-        height=int(tables["height"]),
+        width=_count(tables, "width"),
+        height=_count(tables, "height"),
         kernel_size=k,
         vertex_count=n,
         texels=_table(tables, "texels", (s,), np.int64),
@@ -270,9 +309,9 @@ def kernels_data_from_tables(tables: dict) -> KernelsData:
         border_texels=_table(tables, "borderTexels", (b,), np.int64),
         border_vertices=_table(tables, "borderVertices", (b, 3), np.int64),
         border_barycentric=_table(tables, "borderBarycentric", (b, 3), np.float32),
-        surface_vertex_count=int(tables["surfaceVertexCount"]),
-        surface_global=_table(tables, "surfaceGlobal", (int(tables["surfaceVertexCount"]), 3), np.int64),
-        surface_weights=_table(tables, "surfaceWeights", (int(tables["surfaceVertexCount"]), 3), np.float32),
+        surface_vertex_count=surface,
+        surface_global=_table(tables, "surfaceGlobal", (surface, 3), np.int64),
+        surface_weights=_table(tables, "surfaceWeights", (surface, 3), np.float32),
     )
     data.check()
     return data
@@ -288,9 +327,12 @@ def vertex_ids_from_layout(tables: dict, per_vertex: dict[str, np.ndarray]) -> n
     per_vertex : dict
         Attribute name (``_SSS_KERNELS_VERTEX``) -> (p, 3) stored values ``(vertex, 0, 0)``.
     """
-    stored = np.asarray(per_vertex[tables["attributes"]["vertex"]], dtype=np.float64)
+    name = vertex_attribute_name(tables)
+    if name not in per_vertex:
+        raise KernelsDataError(f"kernels: attribute {name} is missing")
+    stored = np.asarray(per_vertex[name], dtype=np.float64)
     stored = stored.reshape(len(stored), -1)
-    n = int(tables["surfaceVertexCount"])
+    n = _count(tables, "surfaceVertexCount")
     ids = stored[:, 0]
     if stored.shape[1] != ATTRIBUTE_WIDTH or np.any(stored[:, 1:] != 0.0) or np.any(ids != np.rint(ids)):
         raise KernelsDataError("kernels: vertex ids must be stored as (vertex, 0, 0) with integer vertices")

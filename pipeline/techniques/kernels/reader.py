@@ -15,7 +15,11 @@ import numpy as np
 from sssbake.exporters.gltf_tables import load_sssbake_gltf, technique_primitives
 from sssbake.pipeline.core.errors import SssbakeError
 from sssbake.pipeline.techniques.kernels.data import KernelsData
-from sssbake.pipeline.techniques.kernels.layout import kernels_data_from_tables, vertex_ids_from_layout
+from sssbake.pipeline.techniques.kernels.layout import (
+    kernels_data_from_tables,
+    vertex_attribute_name,
+    vertex_ids_from_layout,
+)
 
 
 class KernelsReadError(SssbakeError, ValueError):
@@ -33,7 +37,7 @@ def read_kernels_glb(path: str | os.PathLike) -> dict[tuple[int, int], tuple[Ker
     """
     out = {}
     for i, tables, primitives in technique_primitives(load_sssbake_gltf(path, required=True), "kernels",
-                                                      lambda t: [t["attributes"]["vertex"]]):
+                                                      lambda t: [vertex_attribute_name(t)]):
         data = kernels_data_from_tables(tables)  # one atlas per mesh: its primitives share it
         for j, per_vertex in enumerate(primitives):
             out[(i, j)] = data, vertex_ids_from_layout(tables, per_vertex)

@@ -11,10 +11,11 @@ from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.atlas import Atlas
 from sssbake.pipeline.mesh.baked import VertexAttribute
+from sssbake.pipeline.techniques.kernels.data import KernelsData
 from sssbake.pipeline.techniques.kernels.layout import kernels_bytes, kernels_tables, kernels_vertex_attributes
 from sssbake.pipeline.techniques.kernels.options import KernelsOptions
 from sssbake.pipeline.techniques.kernels.precompute import KernelsPrecomputeOptions, precompute_kernels
-from sssbake.pipeline.techniques.technique import BakeTarget, TechniqueBake
+from sssbake.pipeline.techniques.technique import BakeTarget, TechniqueBake, same_tables
 
 
 def bake_kernels(surface: Surface, atlas: Atlas, primitives: list, mm_per_unit: float, material: Material,
@@ -51,3 +52,12 @@ class KernelsStage:
 
     def vertex_attributes(self, result: TechniqueBake, welded: np.ndarray) -> tuple[VertexAttribute, ...]:
         return kernels_vertex_attributes(result.data, welded)
+
+    def check_bake(self, result: TechniqueBake, target: BakeTarget, options: KernelsOptions) -> None:
+        if not isinstance(result.data, KernelsData):
+            raise ValueError(f"kernels: data is a {type(result.data).__name__}, not KernelsData")
+        if result.data.surface_vertex_count != len(target.surface.positions) or (
+                (result.data.width, result.data.height) != (target.atlas.width, target.atlas.height)):
+            raise ValueError("kernels: data over another surface or atlas than the mesh's")
+        if not same_tables(result.tables, kernels_tables(result.data, options.bits)):
+            raise ValueError("kernels: tables are not those of its data")

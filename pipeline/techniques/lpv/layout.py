@@ -81,6 +81,8 @@ def lpv_tables(grid: LpvGrid, matrices: np.ndarray, scales: np.ndarray, field: s
     }
 
 
+# a value float32 cannot hold (inline JSON in place of a table) becomes inf, which `LpvGrid.check` refuses: no warning
+@np.errstate(over="ignore")
 def lpv_grid_from_tables(tables: dict, mm_per_unit: float) -> tuple[LpvGrid, np.ndarray, np.ndarray]:
     """The inverse of `lpv_tables`: the grid (float32 values as stored), the matrices (6, 4, 4)
     and the scales (S, 3), checked."""

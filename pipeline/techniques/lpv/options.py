@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sssbake.pipeline.core.ranges import LENGTH_MAX_MM, Range
 from sssbake.pipeline.techniques.lpv.grid import LPV_GRID_DEFAULTS, LpvGridOptions
 from sssbake.pipeline.techniques.lpv.marble_field import MARBLE_DEFAULTS, MarbleOptions
 from sssbake.pipeline.techniques.lpv.propagate import MAX_STEPS
@@ -11,6 +12,10 @@ from sssbake.pipeline.techniques.option import option
 
 #: Where a grid's coefficients can come from.
 FIELDS = ("homogeneous", "marble")
+#: The veins' spacing, mm: the noise indexes its lattice with int64 at point / vein_mm x 2^11 (the
+#: 12th octave, `marble_field.fbm`), which holds 2^63 for points up to `LENGTH_MAX_MM` from the
+#: origin down to 2.2e-4 mm (1e-300 overflowed the cast); above `LENGTH_MAX_MM` no object shows a vein.
+VEIN_MM = Range(1e-3, LENGTH_MAX_MM, "the noise's int64 lattice index overflows below ~2e-4 mm", "mm")
 
 
 @dataclass(frozen=True)
@@ -38,7 +43,7 @@ class LpvOptions:
     field: str = option("homogeneous", "lpv: the medium, the material everywhere or marble veins through it "
                                        "(default {default})", choices=FIELDS)
     vein_mm: float = option(MARBLE_DEFAULTS.vein_mm,
-                            "lpv: marble field: spacing of the veins, mm (default {default:g})")
+                            "lpv: marble field: spacing of the veins, mm (default {default:g})", range=VEIN_MM)
     max_steps: int = option(64, "lpv: propagation steps the rendering's scale is tabulated for (default {default:g})")
 
     def grid(self) -> LpvGridOptions:

@@ -14,11 +14,11 @@ from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.baked import VertexAttribute
 from sssbake.pipeline.techniques.lpv.calibrate import render_scales
 from sssbake.pipeline.techniques.lpv.grid import LpvGridOptions, homogeneous, voxelise
-from sssbake.pipeline.techniques.lpv.layout import lpv_bytes, lpv_source, lpv_tables
+from sssbake.pipeline.techniques.lpv.layout import lpv_bytes, lpv_grid_from_tables, lpv_source, lpv_tables
 from sssbake.pipeline.techniques.lpv.marble_field import MarbleOptions, marble_field
 from sssbake.pipeline.techniques.lpv.matrices import propagation_matrices
 from sssbake.pipeline.techniques.lpv.options import FIELDS, LpvOptions
-from sssbake.pipeline.techniques.technique import BakeTarget, TechniqueBake
+from sssbake.pipeline.techniques.technique import BakeTarget, TechniqueBake, same_tables
 
 #: Above this diffusion decay per cell (σ_tr Δx) the bake warns and the planner refines the grid
 #: (the error grows fast past it: benchmarks/README.md#lpv-cell-size).
@@ -93,6 +93,15 @@ class LpvStage:
 
     def vertex_attributes(self, result: TechniqueBake, welded: np.ndarray) -> tuple[VertexAttribute, ...]:
         return ()
+
+    def check_bake(self, result: TechniqueBake, target: BakeTarget, options: LpvOptions) -> None:
+        tables = result.tables
+        grid, matrices, scales = lpv_grid_from_tables(tables, target.mm_per_unit)  # checked: shapes, ranges
+        if len(scales) != options.max_steps or tables.get("field") != options.field:
+            raise ValueError("lpv: tables for other steps or another field than its options'")
+        if result.data is not None or not same_tables(tables, lpv_tables(grid, matrices, scales, options.field,
+                                                                         tables.get("source"))):
+            raise ValueError("lpv: tables are not as its bake lays them out")
 
     def stage_options(self, options: LpvOptions) -> LpvOptions:
         # a homogeneous medium has no veins

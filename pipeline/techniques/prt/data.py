@@ -118,3 +118,37 @@ class PrtData:
     @property
     def vertex_count(self) -> int:
         return len(self.vertex_triangle)
+
+    def check(self) -> None:
+        """Raise ValueError naming the first array with a wrong shape, a value that is not finite or
+        an index out of range."""
+        k, t, n, r = len(self.directions), len(self.direction_triangles), self.vertex_count, len(self.ref_vertices)
+        lookup, f = len(self.direction_lookup), len(self.ref_triangles)
+        channels = self.ref_codes.shape[2] if self.ref_codes.ndim == 3 else -1
+        c, d = self.sh_order * self.sh_order, self.detail_order * self.detail_order
+        detail_rows = r if self.detail_order else 0
+        if channels not in (1, 3) or self.weight_bits not in (8, 16) or self.sh_order < 0 or self.detail_order < 0:
+            raise ValueError(f"prt: need 1 or 3 table channels and 8 or 16 weight bits, got {channels} and "
+                             f"{self.weight_bits}")
+        shapes = {"directions": (k, 3), "direction_triangles": (t, 3), "direction_inverse": (t, 3, 3),
+                  "direction_lookup": (lookup, lookup), "direction_neighbours": (t, 3), "lut": (3, 256),
+                  "ref_vertices": (r,), "ref_codes": (r, k, channels), "ref_scale": (r if channels == 1 else 0, 3),
+                  "ref_triangles": (f, 3), "vertex_triangle": (n,), "weight_codes": (n, 2), "dq_codes": (n, 3, c),
+                  "dq_scale": (3, c), "detail_codes": (detail_rows, d), "detail_colour": (detail_rows, 3),
+                  "detail_scale": (d,)}
+        for name, shape in shapes.items():
+            if getattr(self, name).shape != shape:
+                raise ValueError(f"prt: {name} has shape {getattr(self, name).shape}, expected {shape}")
+        # vertex_triangle is 0 for every vertex of a mesh without reference points
+        for name, bound in (("direction_triangles", k), ("direction_lookup", t), ("direction_neighbours", t),
+                            ("ref_vertices", n), ("ref_triangles", r), ("vertex_triangle", max(f, 1))):
+            a = getattr(self, name)
+            if a.size and (a.min() < 0 or a.max() >= bound):
+                raise ValueError(f"prt: {name} must index 0..{bound - 1}")
+        if np.abs(self.weight_codes.astype(np.int64)).max(initial=0) > 2 ** (self.weight_bits - 1) - 1:
+            raise ValueError(f"prt: weight codes beyond the {self.weight_bits}-bit range")
+        for name in ("directions", "direction_inverse", "lut", "ref_scale", "dq_scale", "detail_scale"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValueError(f"prt: {name} holds NaN or Inf")
+        if not (np.isfinite(self.weight_scale) and np.isfinite(self.eta)):
+            raise ValueError("prt: weight_scale and eta must be finite")

@@ -9,9 +9,9 @@ import os
 from pathlib import Path
 
 from sssbake.exporters.gltf_tables import load_sssbake_gltf, technique_primitives
-from sssbake.pipeline.core.errors import SssbakeError
+from sssbake.pipeline.core.errors import SssbakeError, StaleDataError
 from sssbake.pipeline.techniques.prt.data import PrtData
-from sssbake.pipeline.techniques.prt.layout import prt_from_layout
+from sssbake.pipeline.techniques.prt.layout import prt_attribute_names, prt_from_layout
 
 
 class PrtReadError(SssbakeError, ValueError):
@@ -25,11 +25,13 @@ def read_prt_glb(path: str | os.PathLike) -> dict[tuple[int, int], PrtData]:
     Raises
     ------
     StaleDataError
-        The tables or attributes no longer match their references (`gltf_tables`).
+        The tables or attributes no longer match their references (`gltf_tables`), or a prt block is
+        malformed: a field missing, of the wrong JSON type or out of range (named in the message, with
+        the mesh).
     """
     data = load_sssbake_gltf(path, required=True)
-    out = {(i, j): prt_from_layout(tables, per_vertex)
-           for i, tables, primitives in technique_primitives(data, "prt", _attribute_names)
+    out = {(i, j): _prt(tables, per_vertex, path, f"mesh {i}")
+           for i, tables, primitives in technique_primitives(data, "prt", lambda tables: _names(tables, path))
            for j, per_vertex in enumerate(primitives)}
     if not out:
         raise PrtReadError(f"{path}: no mesh holds prt data (bake with --techniques prt)")
@@ -42,7 +44,8 @@ def read_prt_usd(path: str | os.PathLike) -> dict[str, PrtData]:
     Raises
     ------
     StaleDataError
-        A table or a primvar it names is missing or no longer matches (`exporters.usd.technique_data`).
+        A table or a primvar it names is missing or no longer matches (`exporters.usd.technique_data`),
+        or a prt block is malformed (as `read_prt_glb`).
     """
     from pxr import Usd
 
@@ -53,13 +56,23 @@ def read_prt_usd(path: str | os.PathLike) -> dict[str, PrtData]:
     for prim in stage.Traverse():
         found = technique_data(prim, "prt")
         if found is not None:
-            out[str(prim.GetPath())] = prt_from_layout(*found)
+            out[str(prim.GetPath())] = _prt(*found, path, str(prim.GetPath()))
     if not out:
         raise PrtReadError(f"{path}: no mesh holds prt data (bake with --techniques prt)")
     return out
 
 
-def _attribute_names(tables: dict) -> list[str]:
-    """The per-vertex attributes the prt tables name (no weights attribute with 8-bit weights)."""
-    names = tables["attributes"]
-    return [names["ref"], *([names["weights"]] if "weights" in names else []), *names["dq"]]
+def _names(tables: dict, path: str | os.PathLike) -> list[str]:
+    """`prt_attribute_names`, its ValueError a `StaleDataError` of `path`."""
+    try:
+        return prt_attribute_names(tables)
+    except ValueError as error:
+        raise StaleDataError(path, str(error)) from None
+
+
+def _prt(tables: dict, per_vertex: dict, path: str | os.PathLike, where: str) -> PrtData:
+    """`prt_from_layout`, its ValueError a `StaleDataError` of `path` saying `where` (the mesh) first."""
+    try:
+        return prt_from_layout(tables, per_vertex)
+    except ValueError as error:
+        raise StaleDataError(path, f"{where}: {error}") from None

@@ -24,7 +24,7 @@ from sssbake.pipeline.techniques.prt.forecast import check_budget, prt_forecast
 from sssbake.pipeline.techniques.prt.layout import prt_tables, prt_vertex_attributes
 from sssbake.pipeline.techniques.prt.options import PrtOptions
 from sssbake.pipeline.techniques.prt.precompute import PRT_PRECOMPUTE_DEFAULTS, precompute_prt
-from sssbake.pipeline.techniques.technique import BakeTarget, Budget, TechniqueBake
+from sssbake.pipeline.techniques.technique import BakeTarget, Budget, TechniqueBake, same_tables
 
 #: Vertices decoded at once for the compression error (3 · 32768 · K float64: 157 MB at K = 200).
 ERROR_CHUNK = 32768
@@ -132,3 +132,12 @@ class PrtStage:
 
     def vertex_attributes(self, result: TechniqueBake, welded: np.ndarray) -> tuple[VertexAttribute, ...]:
         return prt_vertex_attributes(result.data, welded)
+
+    def check_bake(self, result: TechniqueBake, target: BakeTarget, options: PrtOptions) -> None:
+        if not isinstance(result.data, PrtData):
+            raise ValueError(f"prt: data is a {type(result.data).__name__}, not PrtData")
+        if result.data.vertex_count != len(target.surface.positions):
+            raise ValueError(f"prt: data over {result.data.vertex_count} vertices, the surface has "
+                             f"{len(target.surface.positions)}")
+        if not same_tables(result.tables, prt_tables(result.data)):
+            raise ValueError("prt: tables are not those of its data")

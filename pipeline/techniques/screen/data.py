@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sssbake.pipeline.core.ranges import LENGTH_MAX_MM
+
 
 @dataclass(frozen=True, eq=False)
 class ScreenSamples:
@@ -50,6 +52,11 @@ class ScreenSamples:
         if not (np.isfinite(self.table_reach_mm) and self.table_reach_mm > 0 and self.driver in (0, 1, 2)):
             raise ValueError(f"screen: need a positive table reach and a driver channel 0..2, got "
                              f"{self.table_reach_mm} and {self.driver}")
+        # up to the profile's own reach: `table_integral` squares the reach (1e300 overflowed), the render
+        # scales its disc by the radius (-1 drew NaN)
+        if not (self.table_reach_mm <= LENGTH_MAX_MM and 0 < self.uniform_radius_mm <= LENGTH_MAX_MM):
+            raise ValueError(f"screen: the table reach and the uniform radius must be in (0, {LENGTH_MAX_MM:g}] mm, "
+                             f"got {self.table_reach_mm} and {self.uniform_radius_mm}")
 
 
 def table_total(samples: ScreenSamples) -> np.ndarray:

@@ -6,10 +6,10 @@ import numpy as np
 
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.mesh.baked import VertexAttribute
-from sssbake.pipeline.techniques.screen.layout import screen_bytes, screen_tables
+from sssbake.pipeline.techniques.screen.layout import screen_bytes, screen_samples_from_tables, screen_tables
 from sssbake.pipeline.techniques.screen.options import ScreenOptions
 from sssbake.pipeline.techniques.screen.samples import ScreenSamplesOptions, screen_samples
-from sssbake.pipeline.techniques.technique import BakeTarget, TechniqueBake
+from sssbake.pipeline.techniques.technique import BakeTarget, TechniqueBake, same_tables
 
 
 def bake_screen(material: Material, options: ScreenSamplesOptions) -> TechniqueBake:
@@ -40,3 +40,11 @@ class ScreenStage:
 
     def vertex_attributes(self, result: TechniqueBake, welded: np.ndarray) -> tuple[VertexAttribute, ...]:
         return ()
+
+    def check_bake(self, result: TechniqueBake, target: BakeTarget, options: ScreenOptions) -> None:
+        samples = screen_samples_from_tables(result.tables)  # checked: shapes, finite, non-negative
+        made = options.samples_options()
+        if len(samples.offsets) != made.samples + made.uniform:
+            raise ValueError(f"screen: {len(samples.offsets)} offsets, not {made.samples} + {made.uniform}")
+        if result.data is not None or not same_tables(result.tables, screen_tables(samples, made)):
+            raise ValueError("screen: tables are not as its bake lays them out")

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sssbake.pipeline.core.ranges import LENGTH_MAX_MM, Range
 from sssbake.pipeline.techniques.option import option
 from sssbake.pipeline.techniques.spectral.precompute import SPECTRAL_DEFAULTS, SpectralPrecomputeOptions
 
 _D = SPECTRAL_DEFAULTS
+#: The filter's width, mm: it squares it (exp(-λ s² / 2), `normals.low_pass`), which overflowed at
+#: 1e300; a width past `LENGTH_MAX_MM` (the profile's own reach) averages every object flat anyway.
+WIDTH_MM = Range(0.0, LENGTH_MAX_MM, "the filter squares its width", "mm")
 
 
 @dataclass(frozen=True)
@@ -26,7 +30,7 @@ class SpectralOptions:
 
     eigenpairs: int = option(_D.eigenpairs, "spectral: harmonics the normals are filtered in (default {default})")
     width_mm: float | None = option(_D.width_mm, "spectral: the filter's spatial standard deviation "
-                                                 "(default: from the material)")
+                                                 "(default: from the material)", range=WIDTH_MM)
     variant: bool = option(False, "spectral: also write STEM.sss_normals.glb, its NORMAL the spectral normal "
                                   "(for stock viewers)", flag=True)
     basis: bool = option(False, "spectral: also export the spectrum (coefficients, eigenvalues, residual, basis) to "

@@ -78,6 +78,20 @@ class SpectralStage:
     def vertex_attributes(self, result: TechniqueBake, welded: np.ndarray) -> tuple[VertexAttribute, ...]:
         return spectral_vertex_attributes(result.data, welded, result.tables is not None)
 
+    def check_bake(self, result: TechniqueBake, target: BakeTarget, options: SpectralOptions) -> None:
+        n = len(target.surface.positions)
+        normals, tables = result.data, result.tables
+        if not (isinstance(normals, np.ndarray) and normals.shape == (n, 3)):
+            raise ValueError(f"spectral: normals are not ({n}, 3)")
+        if (tables is not None) != options.basis:
+            raise ValueError("spectral: tables where the options export none, or none where they do")
+        if tables is not None:
+            m = tables.get("eigenpairs")
+            shapes = {"values": (m,), "coefficients": (m, 3), "residual": (n, 3), "basis": (n * m,)}
+            if tables.get("vertexCount") != n or not isinstance(m, int) or any(
+                    not isinstance(tables.get(k), np.ndarray) or tables[k].shape != s for k, s in shapes.items()):
+                raise ValueError(f"spectral: tables are not over the surface's {n} vertices and their eigenpairs")
+
     def stage_options(self, options: SpectralOptions) -> SpectralOptions:
         return replace(options, variant=False)  # an extra file made from the normals, not a part of them
 

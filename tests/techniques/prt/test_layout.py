@@ -20,13 +20,15 @@ from sssbake.pipeline.techniques.prt.reader import PrtReadError, read_prt_glb, r
 
 
 def random_prt(n: int, k: int = 14, refs: int = 9, order: int = 3, seed: int = 0, channels: int = 3,
-               weight_bits: int = 16, detail_order: int = 0) -> PrtData:
+               weight_bits: int = 16, detail_order: int = 0, triangles: int | None = None) -> PrtData:
     """Codes and tables of the right dtypes and shapes with random contents (decode is not the point);
-    RGB (`channels` 3) or shared (1) reference tables, 16- or 8-bit weights, detail terms (shared)."""
+    RGB (`channels` 3) or shared (1) reference tables, 16- or 8-bit weights, detail terms (shared),
+    `triangles` reference triangles (default 2 · refs - 4) that the vertices index."""
     rng = np.random.default_rng(seed)
     top = (1 << (weight_bits - 1)) - 1
     c = order * order
     d = detail_order * detail_order
+    f = (max(2 * refs - 4, 1) if refs else 0) if triangles is None else triangles
     return PrtData(
         directions=rng.normal(size=(k, 3)).astype(np.float32),
         direction_triangles=rng.integers(0, k, (2 * k - 4, 3)).astype(np.int32),
@@ -37,9 +39,9 @@ def random_prt(n: int, k: int = 14, refs: int = 9, order: int = 3, seed: int = 0
         ref_vertices=np.arange(refs, dtype=np.int64),
         ref_codes=rng.integers(0, 256, (refs, k, channels)).astype(np.uint8),
         ref_scale=rng.random((refs if channels == 1 else 0, 3)).astype(np.float32),
-        ref_triangles=rng.integers(0, max(refs, 1), (max(2 * refs - 4, 1) if refs else 0, 3)).astype(np.int32),
-        # beyond 16 bits on purpose: float32 holds the index exactly
-        vertex_triangle=rng.integers(0, 70000, n).astype(np.int32),
+        ref_triangles=rng.integers(0, max(refs, 1), (f, 3)).astype(np.int32),
+        # 0 without reference points; past 16 bits with `triangles` > 65536: float32 holds them exactly
+        vertex_triangle=rng.integers(0, max(f, 1), n).astype(np.int32),
         weight_codes=rng.integers(-top, top + 1, (n, 2)).astype(np.int16),
         weight_scale=1.5,
         weight_bits=weight_bits,
@@ -73,11 +75,13 @@ def assert_same(a: PrtData, b: PrtData) -> None:
         (b.weight_scale, b.weight_bits, b.sh_order, b.eta, b.detail_order)
 
 
-@pytest.mark.parametrize("refs, order, channels, bits, detail", [(9, 3, 3, 16, 0), (0, 8, 3, 16, 0), (5, 0, 3, 16, 0),
-                                                                (7, 2, 1, 8, 0), (6, 0, 1, 8, 4), (8, 1, 1, 16, 2)])
-def test_glb_and_usd_round_trip_exactly(tmp_path, refs, order, channels, bits, detail):
+@pytest.mark.parametrize("refs, order, channels, bits, detail, triangles", [
+    (9, 3, 3, 16, 0, 70000), (0, 8, 3, 16, 0, None), (5, 0, 3, 16, 0, None), (7, 2, 1, 8, 0, None),
+    (6, 0, 1, 8, 4, None), (8, 1, 1, 16, 2, None)])
+def test_glb_and_usd_round_trip_exactly(tmp_path, refs, order, channels, bits, detail, triangles):
     n = len(icosphere_asset().scene.meshes[0].primitives[0].positions)
-    prt = random_prt(n, refs=refs, order=order, channels=channels, weight_bits=bits, detail_order=detail)
+    prt = random_prt(n, refs=refs, order=order, channels=channels, weight_bits=bits, detail_order=detail,
+                     triangles=triangles)
     asset = prt_asset(prt)
     write_glb(asset, tmp_path / "a.glb")
     write_usdc(asset, tmp_path / "a.usdc")
