@@ -114,7 +114,7 @@ class BatchConfig:
         try:
             check_options(_with_materials(base.merged(cli_overrides), self.materials))
         except ValueError as e:
-            if not any(_possible(base, (cli_overrides, _rule_options(rule)), self.materials) for rule in self.assets):
+            if all(_problem(base, (cli_overrides, _rule_options(rule)), self.materials) for rule in self.assets):
                 # the flag that fails the same way alone is named, else all of them
                 alone = [n for n in cli_overrides
                          if _problem(base, ({n: cli_overrides[n]},), self.materials) == str(e)]
@@ -131,10 +131,6 @@ def _problem(base: BakeOptions, layers: tuple[dict, ...], materials: tuple) -> s
     except ValueError as e:
         return str(e)
     return None
-
-
-def _possible(base: BakeOptions, layers: tuple[dict, ...], materials: tuple) -> bool:
-    return _problem(base, layers, materials) is None
 
 
 def _rule_options(rule: dict) -> dict:
