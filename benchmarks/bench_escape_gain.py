@@ -1,6 +1,6 @@
 """The escape gain (`pipeline/mesh/escape_gain.py`) against an independent walk, and its cost.
 
-    python benchmarks/bench_escape_gain.py [--photons 20000] [--meshes duck,hand,armadillo]
+    python benchmarks/bench_escape_gain.py [--photons 20000] [--meshes duck,hand,armadillo,nefertiti,dragon]
 
 The reference walks a sphere with its exact ray-sphere intersection, and an infinite slab between
 two planes (numba, its own random numbers, no embree, no mesh; the half-space walk's Fresnel), so
@@ -27,7 +27,8 @@ from sssbake.pipeline.mesh.escape_gain import escape_gain
 
 SHARED = Path(__file__).resolve().parent.parent.parent / "shared" / "assets"
 MESHES = {"duck": (SHARED / "duck" / "Duck.glb", 100.0), "hand": (SHARED / "hand" / "hand_closed.obj", 200.0),
-          "armadillo": (SHARED / "armadillo" / "armadillo.obj", 150.0)}
+          "armadillo": (SHARED / "armadillo" / "armadillo.obj", 150.0),
+          "nefertiti": (SHARED / "nefertiti" / "nefertiti-lowres.obj", 1.0), "dragon": (SHARED / "dragon" / "dragon.obj", 10.0)}
 
 
 @numba.njit(parallel=True)

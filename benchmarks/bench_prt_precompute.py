@@ -59,7 +59,8 @@ def timed_precompute(name: str, vertices: int | None, k: int) -> str:
     steps = ", ".join(f"{key} {v:.1f} s" for key, v in res.seconds.items())
     return (f"{name}: {len(s.positions)} vertices, K={k}: {total:.1f} s ({steps}); process peak RSS {rss:.0f} MB; "
             f"operator {res.stats['entries'] / len(s.positions):.0f} entries/vertex, "
-            f"{res.stats['operator_bytes'] / 2**20:.0f} MB; radius {np.round(res.radius_mm, 2)} mm")
+            f"{res.stats['operator_bytes'] / 2**20:.0f} MB, built at {res.seconds['operator'] / res.stats['entries'] * 1e9:.0f} "
+            f"ns/entry; radius {np.round(res.radius_mm, 2)} mm")
 
 
 def main() -> None:

@@ -191,6 +191,11 @@ def _verify(args) -> int:
               f"frame {result['frame_ms_sss']:.2f} ms vs plain {result['frame_ms_plain']:.2f} ms; "
               f"images in {result['pngs']['comparison']} (reference | {result['technique']} | Lambert"
               f"{' | naive' if 'rmse_object_naive' in result else ''})")
+        if "reference_check" in result:
+            check = result["reference_check"]
+            print(f"reference check: the RMSE figures are within {check['rms']:.2g} of the exact reference's (95 % CI "
+                  f"{check['rms_ci95'][0]:.2g}-{check['rms_ci95'][1]:.2g}; exact sums at {check['vertices']} of "
+                  f"{check['of']} vertices, energy scales of {check['sources']} sources)")
         if args.stock_viewer:
             variant = (f"spectral normals variant {result['rmse_object_stock_variant']:.4g}"
                        if result["stock_variant"] is not None else
@@ -390,9 +395,11 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--light-dir", help="x,y,z world direction towards a directional light (default 0.4,0.8,0.45)")
     v.add_argument("--light-pos", help="x,y,z world position of a point light instead (unit irradiance at the "
                                        "objects' centre)")
-    v.add_argument("--reference", default="exact", choices=["exact", "clustered", "volpath"],
+    v.add_argument("--reference", default="exact", choices=["exact", "clustered", "checked", "volpath"],
                    help="offline reference: every vertex pair (default), or far sources through float64 "
-                        "clusters (~1e-3 of q; for 100k+ vertices), or volpath: physics (Mitsuba 3's volumetric "
+                        "clusters (~1e-3 of q; for 100k+ vertices), or checked: clustered, and the exact sum at "
+                        "a random sample of vertices says how far that moves the RMSE (what --report uses), or "
+                        "volpath: physics (Mitsuba 3's volumetric "
                         "path tracer; pip install 'sssbake[physics]'; docs/verify_volpath.md)")
     v.add_argument("--size", type=int, help="image width and height (default 512; 128 with --reference volpath)")
     v.add_argument("--spp", type=int, default=256,

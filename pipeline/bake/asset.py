@@ -12,7 +12,6 @@ import json
 import os
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from importlib.metadata import version
 from pathlib import Path
@@ -63,8 +62,8 @@ from sssbake.pipeline.techniques.registry import TECHNIQUES
 from sssbake.pipeline.techniques.technique import MATERIAL, MESH, Budget, TechniqueBake
 
 # Bump a stage's version when its output for the same input changes (a technique's: its `stage_version`).
-STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 5, "thickness": 2, "thickness_map": 3, "escape_gain": 3,
-                  **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 4}
+STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 6, "thickness": 2, "thickness_map": 4, "escape_gain": 3,
+                  **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 5}
 
 LINEAR, CLAMP_TO_EDGE = 9729, 33071
 
@@ -405,9 +404,10 @@ def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path,
     """Mesh `mi`: its sizes and, when it scatters, its general stages, the techniques chosen for it and
     its baked primitives, thickness texture and scattering materials.
 
-    xatlas runs in a child process on one core, so the atlas is made on a thread that waits for it
-    while the stages that do not read the atlas (thickness, the plan, the atlas-free techniques)
-    run here; the thickness map and the techniques that read the atlas follow it.
+    The atlas is made after the plan, not on a thread beside it: with a proxy's charts carried back
+    most of it is numpy in this process, which waited on the plan's compiled loops for the GIL
+    (the dragon's atlas 7.0 s on a thread, 3.7 s here, its bake no slower:
+    benchmarks/README.md#atlas-reuse).
     """
     mesh = b.scene.meshes[mi]
     mesh_mm = b.mm_per_unit * instance_scale(b.scene, mi, b.warnings)
@@ -419,30 +419,30 @@ def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path,
     b.sizes[mesh.name] = [_size_report(mesh.name, diag_mm, b.material_of[m], b.warnings) for m in mats]
     if not mats:
         return
-    with ThreadPoolExecutor(1) as pool:
-        atlas = pool.submit(_atlas, b, mi, mesh_key)
-        thick = _thickness(b, mi, surface, mesh_key)
-        if b.auto:
-            chosen, mesh_options = _plan_mesh(b, mi, mats, surface, thick, mesh_mm, mesh_key, path, picks)
-        else:
-            chosen, mesh_options = set(b.options.techniques), b.options
-            for m in mats:  # baked as asked, but measured against best-fit Lambert all the same
-                b.lambert_checks += requested_checks(mesh.name, b.scene.materials[m].name, b.options.techniques,
-                                                     surface, mesh_mm, b.material_of[m], b.options, _world(b, mi),
-                                                     _cached_pilot(b, mesh_key))
-        b.used |= chosen
-        results = _bake_mesh_techniques(b, mi, mats, surface, None, mesh_mm, mesh_key, chosen, mesh_options)
-        atlas, k_atlas = atlas.result()
+    thick = _thickness(b, mi, surface, mesh_key)
+    if b.auto:
+        chosen, mesh_options = _plan_mesh(b, mi, mats, surface, thick, mesh_mm, mesh_key, path, picks)
+    else:
+        chosen, mesh_options = set(b.options.techniques), b.options
+        for m in mats:  # baked as asked, but measured against best-fit Lambert all the same
+            b.lambert_checks += requested_checks(mesh.name, b.scene.materials[m].name, b.options.techniques,
+                                                 surface, mesh_mm, b.material_of[m], b.options, _world(b, mi),
+                                                 _cached_pilot(b, mesh_key))
+    b.used |= chosen
+    results = _bake_mesh_techniques(b, mi, mats, surface, None, mesh_mm, mesh_key, chosen, mesh_options)
+    # after the plan: the input's UVs may serve unless kernels, which need gutters, were chosen
+    atlas, k_atlas = _atlas(b, mi, mesh_key, "kernels" not in chosen)
     tmap, _ = b.runner.run("thickness_map", STAGE_VERSIONS["thickness_map"], mesh_key,
-                           ThicknessMapParams(_atlas_params(b.options), b.options.thickness_rays), thickness_map_stage,
+                           ThicknessMapParams(_atlas_params(b.options, atlas.input_uv_set is not None),
+                                              b.options.thickness_rays), thickness_map_stage,
                            atlas, [(p.positions, p.normals) for p in mesh.primitives], surface, _miss_cap(surface))
     stages = _MeshStages(atlas, k_atlas, thick, tmap)
     results |= _bake_mesh_techniques(b, mi, mats, surface, stages, mesh_mm, mesh_key, chosen, mesh_options)
     _baked_mesh(b, mi, mats, surface, stages, mesh_mm, results)
 
 
-def _atlas_params(options: BakeOptions) -> AtlasParams:
-    return AtlasParams(options.atlas_resolution, options.atlas_padding)
+def _atlas_params(options: BakeOptions, reuse_input: bool) -> AtlasParams:
+    return AtlasParams(options.atlas_resolution, options.atlas_padding, reuse_input)
 
 
 def _miss_cap(surface: Surface) -> float:
@@ -450,12 +450,15 @@ def _miss_cap(surface: Surface) -> float:
     return float(np.linalg.norm(np.ptp(surface.positions, axis=0)))
 
 
-def _atlas(b: _Baking, mi: int, mesh_key: str) -> tuple[Atlas, str]:
-    """Mesh `mi`'s atlas and its key (recorded in the report's ``atlas`` block)."""
+def _atlas(b: _Baking, mi: int, mesh_key: str, reuse_input: bool) -> tuple[Atlas, str]:
+    """Mesh `mi`'s atlas (the input's UVs when `reuse_input` and they pass) and its key, recorded
+    in the report's ``atlas`` block: which UVs (``uvs``: TEXCOORD_n, proxy or charted) and why
+    the others were refused."""
     mesh = b.scene.meshes[mi]
-    atlas, k_atlas = b.runner.run("atlas", STAGE_VERSIONS["atlas"], mesh_key, _atlas_params(b.options), atlas_stage,
-                                  [(p.positions, p.faces) for p in mesh.primitives])
+    atlas, k_atlas = b.runner.run("atlas", STAGE_VERSIONS["atlas"], mesh_key, _atlas_params(b.options, reuse_input),
+                                  atlas_stage, [(p.positions, p.faces, p.uvs) for p in mesh.primitives])
     b.atlases[mesh.name] = {
+        "uvs": atlas.source, "refused": list(atlas.notes),
         "width": atlas.width, "height": atlas.height, "charts": atlas.chart_count, "jittered": atlas.jittered,
         # The child's own peak (a cached atlas reports the run that made it): the parent's RSS misses it.
         "xatlas_peak_rss_mb": round(atlas.worker_peak_rss_mb, 1) if np.isfinite(atlas.worker_peak_rss_mb) else None,
@@ -569,12 +572,15 @@ def _baked_mesh(b: _Baking, mi: int, mats: list[int], surface: Surface, stages: 
     b.images.append(Image(f"{mesh.name}_thickness", "image/png", _png_gray(stages.thickness_map.image / tmax)))
     # No mipmaps: below the gutter's width a mip level blends neighbouring charts' thicknesses.
     b.textures.append(Texture(len(b.images) - 1, LINEAR, LINEAR, CLAMP_TO_EDGE, CLAMP_TO_EDGE))
-    uv_set = max(len(p.uvs) for p in mesh.primitives)
+    # the thickness texture reads the input's own UV set when the atlas is it, else a new last set
+    reused = stages.atlas.input_uv_set
+    uv_set = max(len(p.uvs) for p in mesh.primitives) if reused is None else reused
     prims = []
     for pi, (p, part) in enumerate(zip(mesh.primitives, stages.atlas.parts)):
         vm = part.vmapping
         uvs = tuple(uv[vm] for uv in p.uvs)
-        uvs = uvs + (np.zeros((len(vm), 2)),) * (uv_set - len(uvs)) + (part.uvs,)
+        if reused is None:
+            uvs = uvs + (np.zeros((len(vm), 2)),) * (uv_set - len(uvs)) + (part.uvs,)
         prims.append(replace(
             p, positions=p.positions[vm], faces=part.faces, normals=p.normals[vm], uvs=uvs,
             tangents=p.tangents[vm] if p.tangents is not None else None,

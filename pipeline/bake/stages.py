@@ -35,10 +35,11 @@ from sssbake.pipeline.core.back_share import MIN_BEHIND, gathered_shares, object
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.core.surface import Surface
-from sssbake.pipeline.mesh.atlas import Atlas, AtlasPart, compute_atlas
+from sssbake.pipeline.mesh.atlas import Atlas, AtlasPart
 from sssbake.pipeline.mesh.clean import CleanScene, clean_scene
 from sssbake.pipeline.mesh.escape_gain import EscapeGain, escape_gain
 from sssbake.pipeline.mesh.load import load_scene
+from sssbake.pipeline.mesh.proxy_atlas import layout_atlas
 from sssbake.pipeline.mesh.scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef
 from sssbake.pipeline.mesh.thickness import ThicknessResult, bake_thickness
 from sssbake.pipeline.mesh.thickness_map import ThicknessMap, bake_thickness_map
@@ -308,15 +309,18 @@ def _primitive_holds(prim: Primitive, where: str, materials: int, cleaned: bool)
 
 @dataclass(frozen=True)
 class AtlasParams:
-    """A mesh's atlas: texels along its side and gutter texels around each chart."""
+    """A mesh's atlas: texels along its side, gutter texels around each chart, and whether the
+    input's own UVs may serve (not where a technique needs gutters: `proxy_atlas`)."""
 
     resolution: int
     padding: int
+    reuse_input: bool = True
 
 
 def atlas_stage(parts: list, params: AtlasParams) -> Atlas:
-    """`compute_atlas` of `parts`, per primitive its (positions, faces)."""
-    return compute_atlas(parts, params.resolution, params.padding)
+    """`layout_atlas` of `parts`, per primitive its (positions, faces, uv sets): the input's UVs,
+    a proxy's charts or xatlas charting."""
+    return layout_atlas(parts, params.resolution, params.padding, reuse_input=params.reuse_input)
 
 
 @invariants_of(atlas_stage)
@@ -331,7 +335,13 @@ def _atlas_holds(atlas: Atlas, parts: list, params: AtlasParams) -> None:
     count(atlas.chart_count, "atlas.chart_count")
     of_type(atlas.jittered, (bool, np.bool_), "atlas.jittered")
     of_type(atlas.worker_peak_rss_mb, (float, np.floating), "atlas.worker_peak_rss_mb")  # NaN where the OS does not say
-    for i, (part, (positions, faces)) in enumerate(zip(atlas.parts, parts)):
+    of_type(atlas.source, str, "atlas.source")
+    reused = atlas.source.startswith("TEXCOORD_") and atlas.source.removeprefix("TEXCOORD_").isdigit()
+    need(atlas.source in ("proxy", "charted") or (reused and params.reuse_input
+                                                  and atlas.input_uv_set < min(len(uvs) for _, _, uvs in parts)),
+         f"atlas.source {atlas.source!r} is not an input UV set, 'proxy' or 'charted'")
+    need(isinstance(atlas.notes, tuple) and all(isinstance(n, str) for n in atlas.notes), "atlas.notes are not strings")
+    for i, (part, (positions, faces, _)) in enumerate(zip(atlas.parts, parts)):
         of_type(part, AtlasPart, f"atlas.parts[{i}]")
         k = len(indices(part.vmapping, f"atlas.parts[{i}].vmapping", len(positions), (None,)))
         indices(part.faces, f"atlas.parts[{i}].faces", k, (len(faces), 3))

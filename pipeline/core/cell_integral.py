@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sssbake.pipeline.core.profile import Profile, disc_integral
+from sssbake.pipeline.core.scatter_kernels import apex_triangles, triangles_in_plane
 
 #: Gauss-Legendre nodes per sub-triangle of a vertex's own cell (~1e-6), and per triangle seen
 #: from a point beside it (~3e-5 typical, 0.6 % at worst with the point near an edge's line).
@@ -54,6 +55,12 @@ class Cumulative:
         r = np.exp(np.arange(lo, hi + 1.0 / STEPS_PER_E, 1.0 / STEPS_PER_E))
         log_g = np.ascontiguousarray(np.log(np.maximum(disc_integral(r, params), 1e-300)).T)
         return Cumulative(float(lo), log_g, np.diff(log_g, axis=1, append=log_g[:, -1:]))
+
+    def kernel_args(self, nodes: int) -> tuple:
+        """(log_r0, log_g, slope, G at the nodes, STEPS_PER_E, Gauss-Legendre nodes and weights of
+        `nodes`): the arguments of the compiled triangle rules (`scatter_kernels`)."""
+        return (self.log_r0, self.log_g, self.slope, np.exp(self.log_g), float(STEPS_PER_E),
+                *np.polynomial.legendre.leggauss(nodes))
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
         """(...,) radii, mm -> (..., 3)."""
@@ -110,7 +117,7 @@ def triangle_integral_in_plane(point: np.ndarray, a: np.ndarray, b: np.ndarray, 
     """∫ Rd(|p - point|) dp over triangles (a, b, c) from points in their planes.
 
     The triangle is the signed sum of the three triangles (point, edge) (their orientation
-    against the triangle's), each an `apex_triangle`.
+    against the triangle's), each an `apex_triangle` (compiled: `scatter_kernels.triangles_in_plane`).
 
     Parameters
     ----------
@@ -122,34 +129,15 @@ def triangle_integral_in_plane(point: np.ndarray, a: np.ndarray, b: np.ndarray, 
     -------
     (m, 3) float64
     """
-    normal = np.cross(b - a, c - a)
-    out = np.zeros((len(point), 3))
-    for p, q in ((a, b), (b, c), (c, a)):
-        sign = np.sign(np.einsum("ij,ij->i", np.cross(p - point, q - point), normal))
-        out += sign[:, None] * apex_triangle(point, p, q, cumulative, NODES_BESIDE)
-    return out
+    arrays = [np.ascontiguousarray(v, dtype=np.float64) for v in (point, a, b, c)]
+    return triangles_in_plane(*arrays, *cumulative.kernel_args(NODES_BESIDE))
 
 
 def apex_triangle(apex: np.ndarray, p: np.ndarray, q: np.ndarray, cumulative: "Cumulative",
                   nodes: int = NODES) -> np.ndarray:
-    """∫ Rd(|x - apex|) dx over triangles (apex, p, q), (m, 3) each point -> (m, 3)."""
-    x, weights = np.polynomial.legendre.leggauss(nodes)
-    value = np.zeros((len(apex), 3))
-    e1, e2 = p - apex, q - apex
-    double_area = np.linalg.norm(np.cross(e1, e2), axis=1)
-    length = np.linalg.norm(q - p, axis=1)
-    ok = np.flatnonzero(double_area > 1e-300)  # flat triangles (the apex on the edge's line) hold nothing
-    if len(ok) == 0:
-        return value
-    e1, e2, length, double_area = e1[ok], e2[ok], length[ok], double_area[ok]
-    l1, l2 = np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)
-    angle = np.arccos(np.clip(np.einsum("ij,ij->i", e1, e2) / (l1 * l2), -1.0, 1.0))
-    # Distance from the apex to the edge's line, and the angle from e1 to its foot (negative
-    # when the foot lies beyond p, the angle at p being obtuse).
-    foot = double_area / length
-    to_foot = np.arccos(np.clip(foot / l1, -1.0, 1.0))
-    to_foot = np.where(np.einsum("ij,ij->i", -e1, e2 - e1) >= 0.0, to_foot, -to_foot)
-    phi = 0.5 * angle[:, None] * (x[None, :] + 1.0)  # (m, nodes) from e1 towards e2
-    rho = foot[:, None] / np.maximum(np.cos(phi - to_foot[:, None]), 1e-12)
-    value[ok] = (cumulative.channels(rho) @ weights).T * (0.5 * angle / (2.0 * np.pi))[:, None]
-    return value
+    """∫ Rd(|x - apex|) dx over triangles (apex, p, q), (m, 3) each point -> (m, 3).
+
+    In polar coordinates about the apex, Gauss-Legendre over the angle of `nodes` nodes; flat
+    triangles (the apex on the edge's line) hold nothing (compiled: `scatter_kernels.apex_triangles`)."""
+    arrays = [np.ascontiguousarray(v, dtype=np.float64) for v in (apex, p, q)]
+    return apex_triangles(*arrays, *cumulative.kernel_args(nodes))

@@ -23,11 +23,14 @@ has a relative error ~(σ_tr a)⁴/200 + 3e-4: small wherever a source's light s
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
-from sssbake.pipeline.core.profile import Profile, diffuse_reflectance_profile
+from sssbake.pipeline.core.profile import Profile
 
 #: Table range in d/a; beyond it the expansion's fourth-order error is below ~3e-4.
 TABLE_REACH = 8.0
@@ -56,74 +59,13 @@ EDGE_BAND = 0.25
 EDGE_SHARP = 0.25 / T_STEP
 
 
-def disc_mean_exact(d: np.ndarray, a: np.ndarray, p: Profile, height: np.ndarray | float = 0.0) -> np.ndarray:
-    """Exact mean of Rd over a disc of radius a, the receiver `height` above the disc's plane
-    and `d` from the disc's centre along that plane.
-
-    Parameters
-    ----------
-    d, a : (...,) float64, mm, d >= 0, a > 0 (broadcast together)
-    p : Profile
-    height : (...,) float64, mm, >= 0
-        Above the plane, Rd(sqrt(s² + h²)) is each pole with its depth z in the distance
-        replaced by sqrt(z² + h²) (the numerator keeps z), so the closed forms still hold.
-
-    Returns
-    -------
-    (..., 3) float64, 1/mm²
-    """
-    d, a, h = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (d, a, height)))
-    x, w = np.polynomial.legendre.leggauss(NODES)
-    t = (d / a)[..., None]
-    out = np.empty(d.shape + (3,))
-    inside = t[..., 0] < 1.0
-    if np.any(inside):
-        # φ ∈ [0, π] at nodes; ∫_D = (1/π) ∫ G(ρ(φ)) dφ with G = H(0) - H(ρ).
-        phi = 0.5 * np.pi * (x + 1.0)
-        ti, ai, hi = t[inside], a[inside][:, None], h[inside][:, None]
-        rho = ai * (ti * np.cos(phi) + np.sqrt(np.clip(1.0 - (ti * np.sin(phi)) ** 2, 0.0, None)))
-        g = _cumulative(rho, hi, p)  # (m, NODES, 3)
-        out[inside] = 0.5 * np.einsum("k,mkc->mc", w, g) / (np.pi * ai**2)
-    if np.any(~inside):
-        # ψ ∈ [0, π/2]; sin φ = sin ψ / t, dφ = cos ψ / (t cos φ) dψ; ρ± = a (t cos φ ± cos ψ).
-        psi = 0.25 * np.pi * (x + 1.0)
-        to, ao, ho = t[~inside], a[~inside][:, None], h[~inside][:, None]
-        cos_phi = np.sqrt(np.clip(1.0 - (np.sin(psi) / to) ** 2, 0.0, None))
-        near, far = ao * (to * cos_phi - np.cos(psi)), ao * (to * cos_phi + np.cos(psi))
-        jac = np.cos(psi) / np.maximum(to * cos_phi, 1e-300)
-        band = _tail(near, ho, p) - _tail(far, ho, p)  # (m, NODES, 3)
-        out[~inside] = (0.25 * np.pi) * np.einsum("k,mk,mkc->mc", w, jac, band) / (np.pi * np.pi * ao**2)
-    return out
-
-
-def _cumulative(r: np.ndarray, h: np.ndarray, p: Profile) -> np.ndarray:
-    """G(r) = 2π ∫_0^r Rd(sqrt(s² + h²)) s ds = H(0) - H(r), free of cancellation for small r, (..., 3)."""
-    r2 = np.square(r)[..., None]
-    h2 = np.square(h)[..., None]
-    total = np.zeros(np.broadcast_shapes(r2.shape, h2.shape)[:-1] + (3,))
-    for w, z, s in zip(p.weight, p.depth, p.sigma):
-        lifted = np.sqrt(h2 + z * z)
-        excess = r2 / (np.sqrt(r2 + lifted * lifted) + lifted)  # D - z̃, computed stably
-        total += w * z * np.exp(-s * lifted) / lifted * -np.expm1(-np.log1p(excess / lifted) - s * excess)
-    return 0.5 * total
-
-
-def _tail(r: np.ndarray, h: np.ndarray, p: Profile) -> np.ndarray:
-    """H(r) = 2π ∫_r^∞ Rd(sqrt(s² + h²)) s ds in closed form, (..., 3)."""
-    r2 = np.square(r)[..., None]
-    h2 = np.square(h)[..., None]
-    total = np.zeros(np.broadcast_shapes(r2.shape, h2.shape)[:-1] + (3,))
-    for w, z, s in zip(p.weight, p.depth, p.sigma):
-        dist = np.sqrt(r2 + h2 + z * z)
-        total += w * z * np.exp(-s * dist) / dist
-    return 0.5 * total
-
-
 @dataclass(frozen=True, eq=False)
 class DiscMean:
     """ḡ(d, a) for many pairs: a table of ln ḡ over (ln a, d/a) for the discs of one surface.
 
-    Build with `DiscMean.build`; call with distances and source radii.
+    Build with `DiscMean.build`; the compiled `scatter_kernels` read it for many pairs (which pairs
+    take the table, the exact mean, a polar rule, the expansion or the point value:
+    tests/disc_reference.py's `disc_mean`, the same in numpy).
 
     Attributes
     ----------
@@ -148,105 +90,33 @@ class DiscMean:
         hi = float(np.log(big.max())) if len(big) else lo
         count_a = int(np.ceil((hi - lo) / LOG_A_STEP)) + 2
         count_t = int(round(TABLE_REACH / T_STEP)) + 1
-        a = np.exp(lo + LOG_A_STEP * np.arange(count_a))
-        t = T_STEP * np.arange(count_t)
-        mean = disc_mean_exact((a[:, None] * t[None, :]).ravel(), np.repeat(a, count_t), params)
-        log_table = np.log(np.maximum(mean, 1e-300)).reshape(count_a, count_t, 3).transpose(2, 0, 1).copy()
-        return DiscMean(params, lo, log_table)
-
-    def is_point(self, d: np.ndarray, a: np.ndarray) -> np.ndarray:
-        """(m,) bool: pairs far enough from a small enough disc that ḡ is Rd(d) itself."""
-        return (d > POINT_REACH * a) & (a * float(self.params.sigma_tr.max()) < POINT_SIGMA)
-
-    def __call__(self, d: np.ndarray, a: np.ndarray, height: np.ndarray) -> np.ndarray:
-        """ḡ for pairs at distance d from sources of radius a, the receiver `height` off the
-        source's tangent plane (|offset · n_i|); mm, (m,) each -> (m, 3). a = 0 gives Rd(d).
-
-        Receivers nearly in the source's plane (height <= `OFF_PLANE`·d: neighbours on a smooth
-        surface) read the planar table at the distance d; those well off it (across a thin part
-        or a fold, where the planar disc would wrongly cover the receiver) take the exact mean
-        over the tilted disc; pairs beyond the table take the expansion for a tilted disc."""
-        d = np.asarray(d, dtype=np.float64)
-        a = np.asarray(a, dtype=np.float64)
-        h = np.minimum(np.asarray(height, dtype=np.float64), d)
-        out = np.empty((len(d), 3))
-        t = d / np.maximum(a, 1e-300)
-        u = (np.log(np.maximum(a, 1e-300)) - self.log_a0) / LOG_A_STEP
-        close = (t <= TABLE_REACH) & (u >= 0.0)  # above the range cannot happen: built from these radii
-        tabled = close & (h <= OFF_PLANE * d)
-        edge = tabled & (np.abs(t - 1.0) < EDGE_BAND) & (a > EDGE_SHARP * float(self.params.z_min.min()))
-        tabled &= ~edge
-        # Off the plane, a disc small against the kernel's scale there takes the expansion too.
-        tilted = close & ~tabled & (a > SMALL_TILTED * np.sqrt(d * d + self.params.z_min.min() ** 2))
-        close = tabled | tilted | edge
-        if np.any(edge):
-            out[edge] = disc_mean_exact(d[edge], a[edge], self.params)
-        if np.any(tabled):
-            ui = np.clip(u[tabled], 0.0, self.log_table.shape[1] - 1.000001)
-            ti = np.clip(t[tabled] / T_STEP, 0.0, self.log_table.shape[2] - 1.000001)
-            i, j = ui.astype(np.int64), ti.astype(np.int64)
-            fu, ft = ui - i, ti - j
-            for c, table in enumerate(self.log_table):
-                v = ((1 - fu) * ((1 - ft) * table[i, j] + ft * table[i, j + 1])
-                     + fu * ((1 - ft) * table[i + 1, j] + ft * table[i + 1, j + 1]))
-                out[tabled, c] = np.exp(v)
-        if np.any(tilted):
-            # Half a radius or more above the disc, no node comes close to the receiver and a
-            # 32-node polar rule holds (~1e-4); nearer the plane, the exact mean.
-            high = np.flatnonzero(tilted)
-            low = high[h[high] < POLAR_HEIGHT * a[high]]
-            high = high[h[high] >= POLAR_HEIGHT * a[high]]
-            for pick, exact in ((low, True), (high, False)):
-                if len(pick) == 0:
-                    continue
-                along = np.sqrt(np.maximum(d[pick] ** 2 - h[pick] ** 2, 0.0))
-                if exact:
-                    out[pick] = disc_mean_exact(along, a[pick], self.params, h[pick])
-                else:
-                    rho, cos_phi, weight = _POLAR_RULE
-                    ap = a[pick, None]
-                    r2 = h[pick, None] ** 2 + along[:, None] ** 2 + (ap * rho) ** 2 - 2.0 * along[:, None] * ap * rho * cos_phi
-                    out[pick] = np.einsum("k,mkc->mc", weight, diffuse_reflectance_profile(np.sqrt(r2), self.params))
-        # Far from a small disc the spread term is below ~1e-3 of Rd: the point value, for all
-        # three channels at once (most pairs of the offline reference are of this kind).
-        point = ~close & self.is_point(d, a)
-        if np.any(point):
-            out[point] = diffuse_reflectance_profile(d[point], self.params)
-        rest = ~close & ~point
-        if np.any(rest):
-            out[rest] = _disc_expansion(d[rest], a[rest], h[rest], self.params)
-        return out
+        poles = (np.ascontiguousarray(v, dtype=np.float64).tobytes() for v in (params.weight, params.depth, params.sigma))
+        return DiscMean(params, lo, _log_table(*poles, params.weight.shape, lo, count_a, count_t))
 
 
-def _disc_expansion(r: np.ndarray, a: np.ndarray, h: np.ndarray, p: Profile) -> np.ndarray:
-    """Rd(r) + ½ tr(H Σ) for discs of radius a (covariance (a²/4)(I - n nᵀ)) seen from `h` off
-    their plane, clipped at 0; (m,) each -> (m, 3).
+@lru_cache(maxsize=8)
+def _log_table(weight: bytes, depth: bytes, sigma: bytes, shape: tuple, lo: float, count_a: int,
+               count_t: int) -> np.ndarray:
+    """`DiscMean.log_table` for a profile's poles (as bytes of `shape`) on the grid from ln a = `lo`.
 
-    With c = û·n = h/r, ½ tr(H Σ) = (a²/8) (Rd'' (1 - c²) + Rd'/r (1 + c²)). Per
-    pole (D² = r² + z², P = σ D) every piece is e^(-P)/D³ times a polynomial in P
-    (`profile.profile_derivatives`), so the sum is
+    Kept: one bake builds the same table for the same surface and profile several times (the
+    pilot's reference and prt's pilot item, the escape gain's gather), 1-2.7 s each at 4k-50k
+    vertices. Read-only, so that no caller can change another's."""
+    weight, depth, sigma = (np.frombuffer(b, dtype=np.float64).reshape(shape) for b in (weight, depth, sigma))
+    a = np.exp(lo + LOG_A_STEP * np.arange(count_a))
+    t = T_STEP * np.arange(count_t)
+    # Compiled (tests/disc_reference.py's `disc_mean_exact` term by term): the numpy form took 4.6 CPU-s at the 50k dragon.
+    from sssbake.pipeline.core.scatter_kernels import disc_mean_rows  # it imports this module's constants
 
-        z e^(-P)/D³ [1 + P + (a²/8D²) ((1 - c²)(Q₃ r²/D² - Q₂ z²/D²) - (1 + c²) Q₂)]
-
-    with Q₂ = P² + 3P + 3, Q₃ = P³ + 5P² + 12P + 12: half the passes of evaluating Rd, Rd'
-    and Rd'' apart, and finite at r = 0 (duplicate vertices), where Rd'/r is Rd''.
-    """
-    r2 = r * r
-    c2 = np.divide(h * h, r2, out=np.zeros(len(r)), where=r > 0)
-    spread = 0.125 * a * a
-    out = np.empty((len(r), 3))
-    for c in range(3):
-        total = np.zeros(len(r))
-        for w, z, s in zip(*p.channel(c)):
-            d2 = r2 + z * z
-            d = np.sqrt(d2)
-            big_p = s * d
-            q2 = big_p * (big_p + 3.0) + 3.0
-            q3 = big_p * (big_p * (big_p + 5.0) + 12.0) + 12.0
-            bracket = ((1.0 - c2) * (q3 * r2 - q2 * (z * z)) / d2 - (1.0 + c2) * q2) * (spread / d2) + (1.0 + big_p)
-            total += w * z * np.exp(-big_p) / (d2 * d) * bracket
-        out[:, c] = np.maximum(total / (4.0 * np.pi), 0.0)
-    return out
+    table = np.empty((3, count_a, count_t))
+    gauss = np.polynomial.legendre.leggauss(NODES)
+    threads = min(len(os.sched_getaffinity(0)), count_a)
+    bounds = np.linspace(0, count_a, threads + 1).astype(int)
+    with ThreadPoolExecutor(threads) as pool:  # the rows release the GIL
+        list(pool.map(lambda k: disc_mean_rows(a, t, weight, depth, sigma, *gauss, table, bounds[k], bounds[k + 1]),
+                      range(threads)))
+    table.flags.writeable = False
+    return table
 
 
 def _polar_rule(rings: int, angles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

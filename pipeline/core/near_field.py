@@ -21,12 +21,14 @@ benchmarks/README.md#near-field-cell-integrals). So:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-from sssbake.pipeline.core.cell_integral import Cumulative, cell_integral, triangle_integral_in_plane
-from sssbake.pipeline.core.profile import Profile, diffuse_reflectance_profile
-from sssbake.pipeline.core.disc_average import DiscMean
+from sssbake.pipeline.core.cell_integral import NODES_BESIDE, Cumulative, cell_integral
+from sssbake.pipeline.core.disc_average import NODES as DISC_NODES, _POLAR_RULE, DiscMean
+from sssbake.pipeline.core.profile import Profile
+from sssbake.pipeline.core.scatter_kernels import RADIAL_DECAYS, pair_weights, radial_table
 from sssbake.pipeline.core.surface import triangle_areas
 
 #: Sources within this many (a_o + a_i) of the receiver are split into sub-triangles.
@@ -105,53 +107,31 @@ class NearField:
         return NearField(x, area, np.asarray(normals, dtype=np.float64), cell_integral(x, f, params), sub_ptr,
                          sub_corners, sub_normal, sub_area, sub_face, Cumulative.build(params), DiscMean.build(params, radii))
 
-    def weights(self, o: np.ndarray, i: np.ndarray) -> np.ndarray:
-        """∫_{cell_i} Rd(|p - x_o|) dp for receivers o and sources i, (m,) each -> (m, 3), mm² · 1/mm²."""
-        x = self.positions
-        delta = x[o] - x[i]
-        d = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+    @cached_property
+    def kernel_args(self) -> tuple:
+        """(field, weight, depth, sigma, disc, cumulative): this field as the arguments of the
+        compiled `scatter_kernels.pair_weight` (numba takes arrays, not dataclasses)."""
+        p = self.disc.params
         radius = np.sqrt(self.area / np.pi)
-        out = np.empty((len(o), 3))
-        # Most pairs of a gather are far from small sources: the point value, before any of
-        # the finer cases (`DiscMean.is_point`, the same rule as inside `DiscMean`).
-        point = self.disc.is_point(d, radius[i]) & (o != i)
-        out[point] = diffuse_reflectance_profile(d[point], self.disc.params) * self.area[i[point], None]
-        rest = np.flatnonzero(~point)
-        if len(rest):
-            out[rest] = self._close(o[rest], i[rest], delta[rest], d[rest], radius)
-        return out
-
-    def _close(self, o: np.ndarray, i: np.ndarray, delta: np.ndarray, d: np.ndarray, radius: np.ndarray) -> np.ndarray:
-        """`weights` of pairs that are not far from small sources (offsets x_o - x_i, distances
-        and every vertex's disc radius given)."""
+        field = (self.positions, self.area, radius, self.normals, self.own, self.sub_ptr, self.sub_corners,
+                 self.sub_normal, self.sub_area, self.sub_face, ZONE)
+        # The radial table from well inside the shallowest pole to the object's size (no pair
+        # is farther apart; measured from the centroid, so that a rotated mesh reads the same
+        # table) or RADIAL_DECAYS decay lengths, whichever is nearer.
+        r_lo = 1e-4 * float(p.z_min.min())
         x = self.positions
-        out = np.empty((len(o), 3))
-        itself = o == i
-        out[itself] = self.own[o[itself]]
-        split = ~itself & (d < ZONE * (radius[o] + radius[i]))
-        whole = ~itself & ~split
-        if np.any(whole):
-            h = np.abs(np.einsum("ij,ij->i", delta[whole], self.normals[i[whole]]))
-            out[whole] = self.disc(d[whole], radius[i[whole]], h) * self.area[i[whole], None]
-        if np.any(split):
-            pair = np.flatnonzero(split)
-            count = self.sub_ptr[i[pair] + 1] - self.sub_ptr[i[pair]]
-            which = np.repeat(np.arange(len(pair)), count)
-            sub = np.repeat(self.sub_ptr[i[pair]] - (np.cumsum(count) - count), count) + np.arange(len(which))
-            receiver = o[pair][which]
-            value = np.empty((len(sub), 3))
-            shared = (self.sub_face[sub] == receiver[:, None]).any(axis=1)
-            if np.any(shared):
-                tri = self.sub_corners[sub[shared]]
-                value[shared] = triangle_integral_in_plane(x[receiver[shared]], tri[:, 0], tri[:, 1], tri[:, 2],
-                                                           self.cumulative)
-            apart = ~shared
-            ds = x[receiver[apart]] - self.sub_corners[sub[apart]].mean(axis=1)
-            dist = np.sqrt(np.einsum("ij,ij->i", ds, ds))
-            h = np.abs(np.einsum("ij,ij->i", ds, self.sub_normal[sub[apart]]))
-            value[apart] = self.disc(dist, np.sqrt(self.sub_area[sub[apart]] / np.pi), h) * self.sub_area[sub[apart], None]
-            # Sum each pair's run of sub-triangles (`which` ascends; pairs without any keep 0).
-            out[pair] = 0.0
-            has = np.flatnonzero(count)
-            out[pair[has]] = np.add.reduceat(value, (np.cumsum(count) - count)[has], axis=0)
-        return out
+        size = 2.0 * float(np.sqrt(((x - x.mean(axis=0)) ** 2).sum(axis=1).max())) if len(x) else 0.0
+        r_hi = max(min(size, RADIAL_DECAYS / max(float(p.sigma_tr.max()), 1e-300)), 4.0 * r_lo)
+        disc = (self.disc.log_a0, self.disc.log_table, *np.polynomial.legendre.leggauss(DISC_NODES), *_POLAR_RULE,
+                float(p.z_min.min()), float(p.sigma_tr.max()), radial_table(p.weight, p.depth, p.sigma, r_lo, r_hi))
+        return field, p.weight, p.depth, p.sigma, disc, self.cumulative.kernel_args(NODES_BESIDE)
+
+    def weights(self, o: np.ndarray, i: np.ndarray) -> np.ndarray:
+        """∫_{cell_i} Rd(|p - x_o|) dp for receivers o and sources i, (m,) each -> (m, 3), mm² · 1/mm².
+
+        Pairs far from small sources take the point value; the receiver's own cell its exact
+        integral; sources within `ZONE` their sub-triangles; the rest a disc in the source's
+        tangent plane (`scatter_kernels.pair_weight`)."""
+        o = np.ascontiguousarray(o, dtype=np.int64)
+        i = np.ascontiguousarray(i, dtype=np.int64)
+        return pair_weights(o, i, *self.kernel_args)

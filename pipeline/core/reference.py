@@ -90,11 +90,18 @@ def reference_scattering(surface: Surface, mm_per_unit: float, material: Materia
     scattered = _scattering(surface, mm_per_unit, material, light, energy_dropped, clustered)
     if material.back_gain == (1.0, 1.0, 1.0):
         return scattered
-    # light from behind a vertex's tangent plane crossed the object (core.back_share)
+    return scattered * back_gain(surface, material, light)
+
+
+def back_gain(surface: Surface, material: Material, light: Light) -> np.ndarray:
+    """(3, n) factor of light from behind each vertex's tangent plane (`Material.back_gain`), 1 in front:
+    that light crossed the object (core.back_share)."""
+    if material.back_gain == (1.0, 1.0, 1.0):
+        return np.ones((3, len(surface.positions)))
     towards = (np.broadcast_to(np.asarray(light.direction), surface.positions.shape) if light.kind == "directional"
                else np.asarray(light.position, dtype=np.float64) - surface.positions)
     behind = np.einsum("ij,ij->i", surface.normals, towards) < 0.0
-    return scattered * np.where(behind[None, :], np.asarray(material.back_gain)[:, None], 1.0)
+    return np.where(behind[None, :], np.asarray(material.back_gain)[:, None], 1.0)
 
 
 def _scattering(surface: Surface, mm_per_unit: float, material: Material, light: Light, energy_dropped: float,

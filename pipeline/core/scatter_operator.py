@@ -56,11 +56,13 @@ from sssbake.pipeline.core.profile import (
 from sssbake.pipeline.core.freed_memory import release_freed_memory
 from sssbake.pipeline.core.morton import morton_codes
 from sssbake.pipeline.core.near_field import NearField
+from sssbake.pipeline.core.scatter_kernels import far_fill, near_fill, pair_counts
 from sssbake.pipeline.core.surface import vertex_areas
 
-#: Pair entries computed at once per thread while building: bounds the build's temporaries (at 1M a
-#: thread's reached ~0.3 GB; 100k took the 150k-vertex dragon's build from 3.4 to 2.7 GB peak RSS and
-#: 53 to 43 CPU seconds, fewer pages faulted in).
+#: Candidate pairs per block of rows a thread builds at once: small enough that the threads share
+#: the work evenly, large enough that handing out a block costs nothing beside it (the compiled
+#: build writes entries in place); also the entries `_limit_energy` reads at once, which bounds its
+#: float64 temporaries.
 ENTRIES_PER_CHUNK = 100_000
 #: Step in ln D of the far-field kernel table.
 TABLE_STEP = 1e-3
@@ -249,12 +251,10 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
     build = _Builder(params, radius, dtype, options.threads, NearField.build(x, tri, nrm, params))
     lists = cKDTree(x).query_ball_point(x, float(radius.max()))
     count = np.fromiter((len(v) for v in lists), dtype=np.int64, count=len(lists))
-
-    def source_of(j0, j1):
-        which = np.repeat(np.arange(j0, j1), count[j0:j1])
-        return which, np.concatenate([np.asarray(v, dtype=np.int64) for v in lists[j0:j1]])
-
-    near = build.near(np.arange(n), count, source_of)
+    # Each row's list is its own vertices, each source a range of one vertex.
+    rows = np.arange(n)
+    near = build.near(rows, rows, np.r_[0, np.cumsum(count)], np.concatenate(lists).astype(np.int32), np.arange(n + 1),
+                      count)
     source_area = _limit_energy(near, [], area, total)
     stats = dict(levels=0, separation=0, near_nnz=int(near.nnz), far_nnz=[], cells=[],
                  seconds=time.perf_counter() - t0)
@@ -324,13 +324,8 @@ class ScatterPlan:
         # Pairs still near at level 0: every vertex pair, exactly.
         keys = self.cell_of[0][rows]
         vertex_ptr = np.r_[self.starts[0], len(self.positions)]
-
-        def source_of(j0, j1):
-            which, cells_near = _gather(keys[j0:j1], self.near_ptr, self.near_lists)
-            inner, source = _gather(cells_near, vertex_ptr)
-            return which[inner] + j0, source
-
-        return self.builder.near(rows, self.near_per_cell[keys], source_of), levels[::-1]
+        near = self.builder.near(rows, keys, self.near_ptr, self.near_lists, vertex_ptr, self.near_per_cell[keys])
+        return near, levels[::-1]
 
     def build(self) -> ScatterOperator:
         """The operator: every vertex a target."""
@@ -393,9 +388,14 @@ def scatter_plan(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarra
     near_ptr, near_lists = _lists(pairs.astype(np.int32), len(starts[0]))
     size = np.diff(np.r_[starts[0], n])
     per_cell = np.bincount(pairs[:, 0], weights=size[pairs[:, 1]], minlength=len(starts[0])).astype(np.int64)
-    stats = dict(cell_mm=float(h0), levels=top + 1, separation=a, seconds=time.perf_counter() - t0)
-    return ScatterPlan(order, x, area, total, radius, dropped, starts, cell_of, far, near_ptr, near_lists, per_cell,
+    stats = dict(cell_mm=float(h0), levels=top + 1, separation=a)
+    plan = ScatterPlan(order, x, area, total, radius, dropped, starts, cell_of, far, near_ptr, near_lists, per_cell,
                        build, stats, options)
+    # One target's rows load the compiled build from numba's cache (1-3 s, once per process) here,
+    # not inside `scatter_forecast`'s timed sample, which scales its time ~50-fold.
+    plan.matrices(np.zeros(1, dtype=np.int64))
+    stats["seconds"] = time.perf_counter() - t0
+    return plan
 
 
 def _checked(positions_mm, faces, normals, options: ScatterOptions):
@@ -516,7 +516,7 @@ class _Clusters:
 
 
 class _Builder:
-    """Computes the matrices' entries in chunks of rows, on `threads` threads."""
+    """Computes the matrices' entries (compiled, `scatter_kernels`) in blocks of rows, on `threads` threads."""
 
     def __init__(self, params: Profile, radius: np.ndarray, dtype, threads: int, field: NearField,
                  closest: float = 0.0):
@@ -524,106 +524,54 @@ class _Builder:
         self.positions_t = field.positions.T.copy()  # (3, n): the far entries read coordinates apart
         self.table = _KernelTable.build(params, closest, float(radius.max())) if closest > 0 else None
 
-    def near(self, rows, per_row, source_of) -> sp.csr_matrix:
+    def near(self, rows: np.ndarray, keys: np.ndarray, ptr: np.ndarray, lists: np.ndarray, ranges: np.ndarray,
+             per_row: np.ndarray) -> sp.csr_matrix:
         """(3T, n): ∫_{cell_i} Rd_c(|p - x_o|) dp (`NearField.weights`) for each target
         o = rows[j] and its sources i within the channel's radius.
 
-        `per_row` (T,) counts each row's sources; `source_of(j0, j1)` gives (row, source) of
-        rows j0..j1 - 1, grouped by row."""
-        def entries(j0, j1):
-            which, i = source_of(j0, j1)
-            o = rows[which]
-            x = self.field.positions
-            d = np.linalg.norm(x[o] - x[i], axis=1)
-            inside = d <= self.radius.max()
-            weight = np.zeros((len(d), 3))
-            weight[inside] = self.field.weights(o[inside], i[inside])
-            out = []
-            for c in range(3):
-                keep = d <= self.radius[c]
-                out.append((keep, weight[keep, c]))
-            return which, i, out
-
-        return self._assemble(entries, per_row, len(self.field.positions))
+        Row j's sources are the vertices ranges[g] .. ranges[g + 1] - 1 of each g in
+        lists[ptr[keys[j]]:ptr[keys[j] + 1]], in that order; `per_row` (T,) counts them."""
+        x, args = self.field.positions, self.field.kernel_args
+        return self._assemble(
+            per_row, len(x),
+            lambda j0, j1, counts: pair_counts(j0, j1, rows, keys, ptr, lists, ranges, x, x, self.radius, counts),
+            lambda j0, j1, indptr, indices, data: near_fill(j0, j1, rows, keys, ptr, lists, ranges, self.radius,
+                                                            *args, indptr, indices, data))
 
     def far(self, clusters: "_Clusters", cell_of: np.ndarray, rows: np.ndarray) -> sp.csr_matrix:
-        """(3T, m): each target's cluster kernel Rd_c(D) + ½ tr(H Σ) for the clusters its cell
-        reads at this level."""
-        m = clusters.count
-        centroid, spread, trace, ptr, lists = (clusters.centroid, clusters.spread, clusters.trace, clusters.ptr,
-                                               clusters.lists)
+        """(3T, 3m): each target's cluster kernel Rd_c(D) + ½ tr(H Σ) for the clusters its cell
+        reads at this level; channel c's rows read channel c's moments (columns c·m + cluster)."""
+        m, c, table = clusters.count, clusters, self.table
         keys = cell_of[rows]
         xt = self.positions_t
-        table = self.table
+        centroids, each = np.ascontiguousarray(c.centroid.T), np.arange(m + 1)  # clusters as one-item ranges
+        return self._assemble(
+            c.ptr[keys + 1] - c.ptr[keys], 3 * m,
+            lambda j0, j1, counts: pair_counts(j0, j1, rows, keys, c.ptr, c.lists, each, self.field.positions,
+                                               centroids, self.radius, counts),
+            lambda j0, j1, indptr, indices, data: far_fill(
+                j0, j1, rows, keys, c.ptr, c.lists, xt, c.centroid, c.spread, c.trace, self.radius, table.log_lo,
+                table.step, table.value, table.slope, m, indptr, indices, data))
 
-        def entries(j0, j1):
-            which, s = _gather(keys[j0:j1], ptr, lists)
-            which += j0
-            o = rows[which]
-            dx, dy, dz = xt[0][o] - centroid[0][s], xt[1][o] - centroid[1][s], xt[2][o] - centroid[2][s]
-            d2 = dx * dx + dy * dy + dz * dz
-            d = np.sqrt(d2)  # >= separation · h_l > 0
-            sp6 = [component[s] for component in spread]
-            radial = (sp6[0] * dx * dx + sp6[1] * dy * dy + sp6[2] * dz * dz
-                      + 2.0 * (sp6[3] * dx * dy + sp6[4] * dx * dz + sp6[5] * dy * dz)) / d2  # ûᵀ Σ û
-            tr = trace[s]
-            at = (np.log(d) - table.log_lo) / table.step
-            node = np.clip(at.astype(np.int64), 0, table.nodes - 2)
-            frac = at - node
-            out = []
-            for c in range(3):
-                keep = d <= self.radius[c]
-                i, w = node[keep], frac[keep]
-                value, slope = table.value[c], table.slope[c]
-                # Rd(D) + ½ tr(H Σ) = A(D) + B(D) ûᵀΣû + C(D) tr Σ, each interpolated.
-                kernel = value[0][i] + w * slope[0][i]
-                kernel += (value[1][i] + w * slope[1][i]) * radial[keep]
-                kernel += (value[2][i] + w * slope[2][i]) * tr[keep]
-                out.append((keep, kernel))
-            return which, s, out
-
-        matrix = self._assemble(entries, ptr[keys + 1] - ptr[keys], m)
-        # Channel c's rows read channel c's moments: columns c·m + cluster.
-        t = len(rows)
-        for c in range(1, 3):
-            matrix.indices[matrix.indptr[c * t]:matrix.indptr[(c + 1) * t]] += c * m
-        return sp.csr_matrix((matrix.data, matrix.indices, matrix.indptr), shape=(3 * t, 3 * m))
-
-    def _assemble(self, entries, per_row: np.ndarray, width: int) -> sp.csr_matrix:
-        """Stack per-channel entries into a (3T, width) CSR matrix.
-
-        `entries(j0, j1)` gives, for rows j0..j1 - 1, (row, column) per pair grouped by row and
-        per channel (kept mask, values); `per_row` (T,) counts each row's pairs."""
+    def _assemble(self, per_row: np.ndarray, width: int, count, fill) -> sp.csr_matrix:
+        """A (3T, width) CSR matrix, built in blocks of rows of about ENTRIES_PER_CHUNK candidate
+        pairs (`per_row` (T,) counts each row's): `count(j0, j1, counts)` writes each row's
+        entries per channel into counts (3, T), then `fill(j0, j1, indptr, indices, data)` writes
+        them in place, so the arrays are allocated once at their final size."""
         t = len(per_row)
-        # Row chunks of about ENTRIES_PER_CHUNK pairs.
-        bounds = np.unique(np.r_[0, np.searchsorted(np.cumsum(per_row), np.arange(ENTRIES_PER_CHUNK, per_row.sum(),
-                                                                                  ENTRIES_PER_CHUNK)), t])
-
-        def run(j):
-            j0, j1 = int(bounds[j]), int(bounds[j + 1])
-            which, col, per_channel = entries(j0, j1)
-            return [(np.bincount(which[keep] - j0, minlength=j1 - j0), col[keep].astype(np.int32),
-                     value.astype(self.dtype)) for keep, value in per_channel]
-
-        parts = _run_all(run, list(range(len(bounds) - 1)), self.threads)
-        counts = np.concatenate([np.concatenate([part[c][0] for part in parts]) for c in range(3)])
-        size = int(counts.sum())
-        index_dtype = np.int32 if size < 2**31 else np.int64
+        cum = np.cumsum(per_row)
+        bounds = np.unique(np.r_[0, np.searchsorted(cum, np.arange(ENTRIES_PER_CHUNK, cum[-1] if t else 0,
+                                                                   ENTRIES_PER_CHUNK)), t])
+        blocks = list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
+        counts = np.zeros((3, t), dtype=np.int64)
+        _run_all(lambda b: count(b[0], b[1], counts), blocks, self.threads)
+        indptr = np.r_[0, np.cumsum(counts)]
+        size = int(indptr[-1])
+        index_dtype = np.int32 if max(size, width) < 2**31 else np.int64
         indices = np.empty(size, dtype=index_dtype)
         data = np.empty(size, dtype=self.dtype)
-        at = 0
-        for c in range(3):  # channel blocks, each in row order; parts are freed as they are copied
-            for part in parts:
-                _, col, value = part[c]
-                indices[at:at + len(col)] = col
-                data[at:at + len(col)] = value
-                at += len(col)
-                part[c] = None
-            # The copied parts, before the next channel's pages are touched: at 150k vertices
-            # the build's peak is 0.2 GB lower, for ~1 s of page faults.
-            release_freed_memory()
-        indptr = np.r_[0, np.cumsum(counts)].astype(index_dtype)
-        return sp.csr_matrix((data, indices, indptr), shape=(3 * t, width))
+        _run_all(lambda b: fill(b[0], b[1], indptr, indices, data), blocks, self.threads)
+        return sp.csr_matrix((data, indices, indptr.astype(index_dtype)), shape=(3 * t, width))
 
 
 @dataclass(frozen=True, eq=False)
@@ -703,13 +651,3 @@ def _lists(pairs: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (t, s) as per-t lists: (ptr (m + 1,), items) with t's items at items[ptr[t]:ptr[t+1]]."""
     by_t = np.argsort(pairs[:, 0], kind="stable")
     return np.r_[0, np.cumsum(np.bincount(pairs[:, 0], minlength=m))], pairs[by_t, 1]
-
-
-def _gather(keys: np.ndarray, ptr: np.ndarray, items: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """For each key k (in order), the items of its list: (position of the key, item) per entry.
-
-    Without `items` the lists are the index ranges ptr[k] .. ptr[k+1] - 1 themselves."""
-    count = ptr[keys + 1] - ptr[keys]
-    which = np.repeat(np.arange(len(keys)), count)
-    index = np.repeat(ptr[keys] - (np.cumsum(count) - count), count) + np.arange(len(which))
-    return which, index if items is None else items[index]

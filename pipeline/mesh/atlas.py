@@ -101,6 +101,12 @@ class Atlas:
         Whether the first xatlas run crashed and this atlas comes from the jittered retry.
     worker_peak_rss_mb : float
         Peak resident memory of the xatlas child process (NaN where the OS does not say).
+    source : str
+        Where the UVs come from (`proxy_atlas`): ``"TEXCOORD_<n>"`` the input's set n (``chart_count``
+        0: not counted), ``"proxy"`` a simplified proxy's charts carried back, ``"charted"`` xatlas
+        on the mesh itself.
+    notes : tuple of str
+        Why the layouts tried before `source` were refused.
     """
 
     parts: tuple[AtlasPart, ...]
@@ -109,6 +115,13 @@ class Atlas:
     chart_count: int
     jittered: bool
     worker_peak_rss_mb: float
+    source: str = "charted"
+    notes: tuple[str, ...] = ()
+
+    @property
+    def input_uv_set(self) -> int | None:
+        """The input TEXCOORD set the atlas is, or None when it was charted."""
+        return int(self.source.removeprefix("TEXCOORD_")) if self.source.startswith("TEXCOORD_") else None
 
 
 def compute_atlas(

@@ -34,11 +34,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from sssbake.pipeline.core.fresnel import fresnel_transmittance
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.mesh.winding import edge_defects
 
@@ -164,50 +164,95 @@ def _walk(body, sigma_s: float, sigma_a: float, eta: float, photons: int, seed: 
     sin_e = eta * sin_t
     light = (np.sqrt(1.0 - sin_e ** 2)[:, None] * n - (sin_e * np.cos(phi))[:, None] * t1
              - (sin_e * np.sin(phi))[:, None] * t2)
-    p = p - offset * n
+    # Only the photons still inside are kept, compacted after each flight. Each flight's random
+    # numbers are drawn in numpy, in the order and sizes the photons' fates ask for them, and one
+    # compiled pass (`_fly`) moves, scatters, absorbs, reflects or lets out every photon.
+    state = np.hstack((p - offset * n, d, light))
+    walls = np.array([[0.0, 0.0, 1.0]]) if body is None else normal
     left = behind = 0
-    alive = np.arange(photons)
     for _ in range(MAX_STEPS):
-        if not len(alive):
+        if not len(state):
             break
-        flight = -np.log1p(-rng.random(len(alive))) / sigma_t
-        at, towards = p[alive], d[alive]
+        flight = -np.log1p(-rng.random(len(state))) / sigma_t
         if body is None:
-            hit = towards[:, 2] > 0.0
-            distance = np.where(hit, -at[:, 2] / np.where(hit, towards[:, 2], 1.0), np.inf)
-            hit &= distance < flight
-            wall = np.tile([0.0, 0.0, 1.0], (len(alive), 1))
+            up = state[:, 5] > 0.0
+            distance = np.where(up, -state[:, 2] / np.where(up, state[:, 5], 1.0), np.inf)
+            wall = np.where(up & (distance < flight), 0, -1)
         else:
-            found = scene.run(at.astype(np.float32), towards.astype(np.float32), dists=flight.astype(np.float32),
-                              output=1)
-            hit = found["primID"] >= 0
-            distance = found["tfar"].astype(np.float64)
-            wall = normal[np.maximum(found["primID"], 0)]
-        stays = np.ones(len(alive), dtype=bool)
-        free = np.flatnonzero(~hit)
-        at[free] += flight[free, None] * towards[free]
-        absorbed = free[rng.random(len(free)) >= albedo]
-        stays[absorbed] = False
-        scattered = np.setdiff1d(free, absorbed, assume_unique=True)
-        z = 2.0 * rng.random(len(scattered)) - 1.0
-        r, angle = np.sqrt(1.0 - z * z), 2.0 * np.pi * rng.random(len(scattered))
-        towards[scattered] = np.c_[r * np.cos(angle), r * np.sin(angle), z]
-        met = np.flatnonzero(hit)
-        if len(met):
-            cos_i = np.einsum("ij,ij->i", towards[met], wall[met])  # > 0: the outward normal
-            outward = wall[met] * np.sign(cos_i)[:, None]
-            cos_i = np.abs(cos_i)
-            at[met] += distance[met, None] * towards[met]
-            # leaving: the transmittance at the outside angle (reciprocity), 0 past the critical angle
-            cos_out = np.sqrt(np.clip(1.0 - eta * eta * (1.0 - cos_i * cos_i), 0.0, 1.0))
-            leaves = rng.random(len(met)) < fresnel_transmittance(eta, cos_out)
-            left += int(leaves.sum())
-            out = met[leaves]
-            behind += int((np.einsum("ij,ij->i", outward[leaves], light[alive[out]]) < 0.0).sum())
-            stays[met[leaves]] = False
-            back = met[~leaves]
-            towards[back] -= 2.0 * cos_i[~leaves, None] * outward[~leaves]
-            at[back] -= offset * outward[~leaves]
-        p[alive], d[alive] = at, towards
-        alive = alive[stays]
+            found = scene.run(state[:, :3].astype(np.float32), state[:, 3:6].astype(np.float32),
+                              dists=flight.astype(np.float32), output=1)
+            wall, distance = found["primID"], found["tfar"].astype(np.float64)
+        met = int((wall >= 0).sum())
+        absorbed = rng.random(len(state) - met)
+        scattered = int((absorbed < albedo).sum())
+        z, angle, leave = rng.random(scattered), rng.random(scattered), rng.random(met)
+        stays, out, out_behind = _fly(state, flight, wall, distance, walls, absorbed, z, angle, leave, albedo, eta,
+                                      offset)
+        left, behind = left + out, behind + out_behind
+        state = state[stays]
     return left / photons, behind / photons
+
+
+@numba.njit(cache=True)
+def _fly(state, flight, wall, distance, walls, absorbed, z, angle, leave, albedo, eta, offset):
+    """One flight of every photon in `state` (m, 9): position, direction, towards its light, in
+    place. A photon whose `wall` (m,) is >= 0 meets the surface of normal ``walls[wall]`` after
+    `distance` (m,) and leaves with Fresnel's transmittance at its outside angle or is reflected
+    (`offset` back inside); the others fly `flight` (m,) and are absorbed or scatter isotropically.
+    The uniforms are used in photon order: `absorbed` one per free photon, `z` and `angle` one
+    per scattered one, `leave` one per photon at the wall.
+
+    Returns
+    -------
+    stays : (m,) bool
+    left, behind : int
+        Photons that left, and of them those that left behind their light (n_exit·ω < 0).
+    """
+    stays = np.ones(len(state), dtype=np.bool_)
+    left = behind = 0
+    free = scattered = at_wall = 0
+    for k in range(len(state)):
+        hit = wall[k] >= 0
+        step = distance[k] if hit else flight[k]
+        for a in range(3):
+            state[k, a] += step * state[k, 3 + a]
+        if not hit:
+            if absorbed[free] >= albedo:
+                stays[k] = False
+            else:
+                cos_z = 2.0 * z[scattered] - 1.0
+                r, phi = np.sqrt(1.0 - cos_z * cos_z), 2.0 * np.pi * angle[scattered]
+                state[k, 3], state[k, 4], state[k, 5] = r * np.cos(phi), r * np.sin(phi), cos_z
+                scattered += 1
+            free += 1
+            continue
+        w = walls[wall[k]]
+        cos_i = state[k, 3] * w[0] + state[k, 4] * w[1] + state[k, 5] * w[2]
+        sign = 1.0 if cos_i > 0.0 else (-1.0 if cos_i < 0.0 else 0.0)  # towards the outward normal
+        cos_i = abs(cos_i)
+        # leaving: the transmittance at the outside angle (reciprocity), 0 past the critical angle
+        cos_out = np.sqrt(min(max(1.0 - eta * eta * (1.0 - cos_i * cos_i), 0.0), 1.0))
+        if leave[at_wall] < _transmittance(eta, cos_out):
+            left += 1
+            if sign * (w[0] * state[k, 6] + w[1] * state[k, 7] + w[2] * state[k, 8]) < 0.0:
+                behind += 1
+            stays[k] = False
+        else:
+            for a in range(3):
+                outward = w[a] * sign
+                state[k, 3 + a] -= 2.0 * cos_i * outward
+                state[k, a] -= offset * outward
+        at_wall += 1
+    return stays, left, behind
+
+
+@numba.njit(cache=True)
+def _transmittance(eta, cos_i):
+    """`fresnel.fresnel_transmittance` of one cosine, compiled."""
+    ci = min(max(cos_i, 0.0), 1.0)
+    ct = np.sqrt(min(max(1.0 - (1.0 - ci * ci) / (eta * eta), 0.0), 1.0))
+    if ci <= 0.0:  # grazing: total reflection
+        return 0.0
+    rs = (ci - eta * ct) / (ci + eta * ct)
+    rp = (eta * ci - ct) / (eta * ci + ct)
+    return min(max(1.0 - 0.5 * (rs * rs + rp * rp), 0.0), 1.0)

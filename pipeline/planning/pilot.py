@@ -170,7 +170,11 @@ def run_pilot(found: list[Candidate], surface: Surface, mm_per_unit: float, mate
                 label = hooks.self_reference_label
             else:
                 if profiled is None:
-                    q = reference_scattering(small, mm_per_unit, material, Light("directional", tuple(local)))
+                    # clustered (far sources through clusters, float64): 0.02-0.11 % of q from the
+                    # exact sum on the shared assets' subsamples, 4-16x cheaper
+                    # (benchmarks/README.md#pilot-reference), against RMSEs of a few percent
+                    q = reference_scattering(small, mm_per_unit, material, Light("directional", tuple(local)),
+                                             clustered=True)
                     profiled = compared(*renderer.render([{**base, "q": q.T}], camera, lit))
                 reference, ref_mask, exposure, baseline = profiled
             image, mask = renderer.render([{**base, **item}], camera, lit)

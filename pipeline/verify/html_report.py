@@ -2,10 +2,12 @@
 
 Per asset: its status and warnings, the planner's decisions (``--techniques auto``), and per
 technique it baked the bytes per vertex, the bake's seconds and, verified against the offline
-reference (`plan_check.check_technique`, small images), the image RMSE, the frame times and the
-picture (reference | technique | Lambert). Each row says whether the technique is worse than
-best-fit Lambert (the full asset's figures, or where it was not verified its pilot's), and the page
-counts and names those that are. A bake under a budget (``--budget-rmse``) brings its
+reference (`verify_technique`: small images, the clustered reference checked against the exact sum
+at a sample of vertices), the image RMSE, the frame times and the picture (reference | technique |
+Lambert). What the verification cost is on the page and in each asset's ``.report.json``
+(``verification``): its seconds, and those as a fraction of the bake's. Each row says whether the
+technique is worse than best-fit Lambert (the full asset's figures, or where it was not verified
+its pilot's), and the page counts and names those that are. A bake under a budget (``--budget-rmse``) brings its
 own check's figures, and the page plots what its pilot measured per candidate beside what the full
 asset measured (`plan_check`). A Pareto plot (matplotlib) puts every verified technique of the
 batch at its bytes per vertex and frame-time ratio against its RMSE. Images are inline PNG (base64)
@@ -18,9 +20,11 @@ import base64
 import html
 import io
 import json
+import time
 from pathlib import Path
 
 from sssbake.exporters.atomic import atomic_path
+from sssbake.pipeline.bake.asset import json_default
 from sssbake.pipeline.planning.pilot import PILOT_SIZE, beats_lambert
 from sssbake.pipeline.planning.plan import lambert_line, worse_than_lambert
 from sssbake.pipeline.techniques.registry import BY_NAME, NAMES
@@ -42,10 +46,8 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse:
         Each verified row says whether its image RMSE is within it, and the page counts them (an
         asset baked under a budget is judged by its own).
     """
-    from sssbake.pipeline.bake.check import check_technique
-
     out_dir = Path(out_dir)
-    sections, points = [], []
+    sections, points, spent, baked = [], [], 0.0, 0.0
     worse, worse_pilot = [], []  # marks (`plan.lambert_line`): from the full asset's figures, from the pilot's
     for record in summary["assets"]:
         name = html.escape(record["asset"])
@@ -57,16 +59,20 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse:
                             f'{html.escape(record["same_as"])}, baked once under that name</p></div>')
             continue
         glb = next(Path(p) for p in record["outputs"] if p.endswith(".glb"))
-        report = json.loads(Path(next(p for p in record["outputs"] if p.endswith(".report.json"))).read_text())
-        rows = []
+        report_path = Path(next(p for p in record["outputs"] if p.endswith(".report.json")))
+        report = json.loads(report_path.read_text())
+        rows, costs, references = [], {}, {}  # one reference per draw unit for all of the asset's techniques
         check = report.get("check", {})
         budget = check.get("budget", budget_rmse)
         for technique in NAMES:
             if not report.get(technique):
                 continue
             figures = check.get("figures", {}).get(technique)
-            if figures is None:
-                figures = check_technique(glb, technique, report["vertices"], out_dir / ".report") if verify else {}
+            if figures is None and verify:
+                t = time.perf_counter()
+                figures = verify_technique(glb, technique, report["vertices"], out_dir / ".report", references)
+                costs[technique] = _cost(figures, time.perf_counter() - t)
+            figures = figures or {}
             if "rmse_image" in figures:
                 points.append((f"{Path(record['asset']).stem} {technique}", figures, budget))
                 worsened = not beats_lambert(figures["rmse_object"], figures["rmse_object_lambert"], 0.0)
@@ -78,7 +84,12 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse:
                 marks = [m for m in worse_than_lambert(report) if m["technique"] == technique]
                 worse_pilot += [{"asset": record["asset"], **m} for m in marks]
                 worsened = bool(marks)
-            rows.append(_technique_row(technique, report, figures, budget, worsened))
+            rows.append(_technique_row(technique, report, figures, budget, worsened, costs.get(technique)))
+        if costs:
+            report["verification"] = _verification(costs, report.get("seconds"))
+            spent, baked = spent + report["verification"]["seconds"], baked + (report.get("seconds") or 0.0)
+            with atomic_path(report_path) as tmp:
+                Path(tmp).write_text(json.dumps(report, indent=1, default=json_default))
         sections.append(_asset_section(name, record, report, rows))
     body = "".join(sections)
     plot = _pareto(points) if points else ""
@@ -92,13 +103,67 @@ def write_report(out_dir: Path, summary: dict, verify: bool = True, budget_rmse:
                 f"{', '.join(f'{b:g}' for b in sorted(budgets))}.</p>") + plot
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>sssbake batch report</title>"
             f"<style>{STYLE}</style></head><body><h1>sssbake batch report</h1>"
-            f"<p>{summary['ok']} baked, {summary['failed']} failed in {summary['seconds']:.1f} s.</p>"
+            f"<p>{summary['ok']} baked, {summary['failed']} failed in {summary['seconds']:.1f} s"
+            + (f"; verification {spent:.1f} s, {_fraction(spent, baked)} the bakes' own {baked:.1f} s" if spent else "")
+            + ".</p>"
             f"{plot}{body}</body></html>")
     path = out_dir / "report.html"
     with atomic_path(path) as tmp:
         # as its charset says; a file name's bytes that are not UTF-8 (os.fsdecode's escapes) as \udcNN
         Path(tmp).write_text(page, encoding="utf-8", errors="backslashreplace")
     return path
+
+
+def verify_technique(glb: Path, technique: str, vertices: int, out_dir: Path, references: dict | None = None) -> dict:
+    """`verify.verify_file`'s figures of `technique` in `glb` at the pilot's `PILOT_SIZE`², against the
+    clustered reference checked at a sample of vertices (``reference_check``; the exact sum at every
+    vertex cost three times the bake: `checked_reference`); ``{"error": line}`` when the file holds
+    nothing it can draw, ``{"skipped": line}`` above `check.CHECK_MAX_VERTICES` (the reference's memory);
+    `references` as `verify_file`'s (the asset's techniques share theirs)."""
+    from sssbake.pipeline.bake.check import CHECK_MAX_VERTICES
+    from sssbake.pipeline.verify.verify import verify_file
+
+    if vertices > CHECK_MAX_VERTICES:
+        return {"skipped": f"not verified: {vertices} vertices, over {CHECK_MAX_VERTICES} (its reference would need "
+                           f"about {vertices * 50e3 / 1e9:.2g} GB)"}
+    try:
+        return verify_file(glb, technique, size=PILOT_SIZE, out_dir=out_dir, frames=3, reference_sum="checked",
+                           references=references)
+    except ValueError as error:
+        return {"error": str(error).splitlines()[0]}
+
+
+def _cost(figures: dict, seconds: float) -> dict:
+    """One technique's verification in the report JSON: its wall `seconds`, the reference's, the
+    reference's check (`checked_reference.check_figures`) where it ran, and the RMSE figures it gave."""
+    return {"seconds": round(seconds, 3), "reference": figures.get("reference"),
+            "reference_seconds": figures.get("reference_seconds"), "reference_check": figures.get("reference_check"),
+            **{k: figures[k] for k in ("rmse_image", "rmse_object") if k in figures}}
+
+
+def _verification(costs: dict, bake_seconds: float | None) -> dict:
+    """The report JSON's ``verification``: ``seconds`` (all `costs`, technique -> `_cost`), ``bake_seconds``,
+    ``bake_fraction`` (None without the bake's) and ``techniques`` (`costs`)."""
+    spent = sum(c["seconds"] for c in costs.values())
+    return {"seconds": round(spent, 3), "bake_seconds": bake_seconds,
+            "bake_fraction": round(spent / bake_seconds, 4) if bake_seconds else None, "techniques": costs}
+
+
+def _fraction(spent: float, baked: float | None) -> str:
+    """``"0.25 ×"`` of `spent` over `baked`, or ``"beside"`` without a bake time."""
+    return f"{spent / baked:.2f} ×" if baked else "beside"
+
+
+def _check_line(figures: dict) -> str:
+    """The reference of verify's `figures` in words; with a sampled check (``reference_check``:
+    `checked_reference.check_figures`) the samples and the bound on the RMSE figures."""
+    check = figures.get("reference_check")
+    if not check:
+        return f"{figures.get('reference', 'exact')} reference"
+    lo, hi = check["rms_ci95"]
+    return (f"clustered reference, RMSE figures within {check['rms']:.2g} of the exact reference's (95 % CI "
+            f"{lo:.2g}–{hi:.2g}): exact sums at {check['vertices']} of {check['of']} vertices and energy scales of "
+            f"{check['sources']} sources (off by up to {check['scale_error']:.2%}), drawn at random")
 
 
 def _asset_section(name: str, record: dict, report: dict, rows: list[str]) -> str:
@@ -112,29 +177,35 @@ def _asset_section(name: str, record: dict, report: dict, rows: list[str]) -> st
         plan_table += _check_section(report)
     table = ("<table><tr><th>technique</th><th>bytes / vertex</th><th>RMSE image</th><th>RMSE object</th>"
              "<th>Lambert RMSE</th><th>vs best-fit Lambert</th><th>frame ms (plain)</th><th>budget</th>"
-             "<th>reference | technique | Lambert</th></tr>"
+             "<th>verification</th><th>reference | technique | Lambert</th></tr>"
              f"{''.join(rows)}</table>") if rows else "<p>No technique baked: the standard fallback only.</p>"
     check = report.get("check")
     spent = (f" (the last of {len(check['attempts'])}; with the pilot and the checks {check['seconds']:.1f} s)"
              if check and "seconds" in check else "")
+    cost = report.get("verification")
+    if cost:
+        spent += (f", verification {cost['seconds']:.2f} s ({_fraction(cost['seconds'], cost['bake_seconds'])} "
+                  "the bake)")
     return (f'<div class="asset"><h2>{name}</h2><p>{record["status"]}, bake {report.get("seconds", 0):.2f} s{spent}, '
             f'{len(report.get("warnings", []))} warnings</p>{"<ul>" + warnings + "</ul>" if warnings else ""}'
             f"{plan_table}{table}</div>")
 
 
-def _technique_row(technique: str, report: dict, figures: dict, budget: float | None, worse: bool) -> str:
+def _technique_row(technique: str, report: dict, figures: dict, budget: float | None, worse: bool,
+                   cost: dict | None = None) -> str:
     """One technique's row; `worse`: worse than best-fit Lambert (on the full asset when verified,
-    else in its pilot)."""
+    else in its pilot); `cost`: its verification here (`_cost`; None: the budget check's figures)."""
     blocks = list(report[technique].values())
     per_vertex = BY_NAME[technique].bytes_per_vertex(blocks[0])
     mark = "<td class='worse'>worse</td>" if worse else "<td>—</td>"
     if "error" in figures or "skipped" in figures:
         line = figures.get("error", figures.get("skipped"))
         return (f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='3'>{html.escape(line)}</td>{mark}"
-                "<td colspan='3'></td></tr>")
+                "<td colspan='4'></td></tr>")
     if not figures:
         return (f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td colspan='3'>not verified</td>{mark}"
-                "<td colspan='3'></td></tr>")
+                "<td colspan='4'></td></tr>")
+    spent = (f"{cost['seconds']:.2f} s; " if cost else "the budget check's; ") + _check_line(figures)
     picture = base64.b64encode(Path(figures["pngs"]["comparison"]).read_bytes()).decode()
     return (f"<tr><td>{technique}</td><td>{per_vertex:.1f}</td><td>{figures['rmse_image']:.4f}</td>"
             f"<td>{figures['rmse_object']:.4f}</td><td>{figures['rmse_object_lambert']:.4f}</td>"
@@ -142,7 +213,7 @@ def _technique_row(technique: str, report: dict, figures: dict, budget: float | 
             f"<td>{figures['frame_ms_sss']:.1f} ({figures['frame_ms_plain']:.1f})</td>"
             + ("<td>—</td>" if budget is None else
                f"<td>{'within' if figures['rmse_image'] <= budget else 'over'} {budget:g}</td>") +
-            f"<td><img alt='{technique}' src='data:image/png;base64,{picture}'></td></tr>")
+            f"<td>{html.escape(spent)}</td><td><img alt='{technique}' src='data:image/png;base64,{picture}'></td></tr>")
 
 
 def _check_section(report: dict) -> str:

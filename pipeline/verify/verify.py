@@ -45,13 +45,15 @@ from sssbake.pipeline.render.items import PLAIN_ALBEDO, merged_primitive
 from sssbake.pipeline.render.renderer import DEFAULT_LIGHT, Renderer, RenderLight, fit_camera
 from sssbake.pipeline.techniques.registry import BY_NAME, NAMES
 from sssbake.pipeline.techniques.technique import VerifyShot, VerifyUnit
+from sssbake.pipeline.verify.checked_reference import check_figures, checked_reference
 
-REFERENCES = ("exact", "clustered")
+REFERENCES = ("exact", "clustered", "checked")
 
 
 def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT, size: int = 512,
                 out_dir: str | os.PathLike | None = None, frames: int = 20, light_pos=None,
-                reference_sum: str = "exact", lpv_steps: int | None = None, stock_viewer: bool = False) -> dict:
+                reference_sum: str = "exact", lpv_steps: int | None = None, stock_viewer: bool = False,
+                references: dict | None = None) -> dict:
     """Render `path` (.glb) with `technique`'s runtime and with the offline reference.
 
     Parameters
@@ -64,11 +66,16 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     reference_sum : str
         ``"exact"`` (every pair) or ``"clustered"`` (far sources through float64 clusters, ~1e-3
         of q; for meshes of 100k+ vertices, where the exact sum takes hours; see
-        `reference.reference_scattering`).
+        `reference.reference_scattering`) or ``"checked"`` (the clustered sum, checked against the
+        exact sum at a random sample of vertices: `checked_reference`, the figure ``reference_check``).
     lpv_steps : int, optional
         lpv: propagation steps per frame (default: the runtime's, `lpv_propagate.LPV_DEFAULTS`).
     stock_viewer : bool
         Also render what a stock glTF viewer shows (`stock_figures`).
+    references : dict, optional
+        The dipole references computed so far (the same for every technique: a batch's report
+        verifies each technique of an asset against one), filled here; a draw unit of the same
+        file under the same world matrix, light and `reference_sum` reads its own from it.
     size : int
         Image width and height in pixels.
     out_dir : path, optional
@@ -82,7 +89,10 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         ``self_reference_label`` where it compared with its own reference; see
         `reference_label`), ``rmse_image``, ``rmse_object``, ``rmse_object_lambert``,
         ``lambert_scale``, ``bytes_per_vertex``, ``bake_seconds``, ``frame_ms_sss``,
-        ``frame_ms_plain``, ``reference_seconds``, ``exposure``, ``image_size``, ``pngs``, and
+        ``frame_ms_plain``, ``reference_seconds``, ``seconds`` (the whole verification),
+        ``exposure``, ``image_size``, ``pngs``, with a ``"checked"`` reference ``reference_check``
+        (`checked_reference.check_figures`: the sample, and how far the RMSE figures can move from
+        the exact reference's, with its 95 % interval), and
         the technique's own figures (``verify_figures``): spectral ``spectral_scale`` (the fit
         applied to its image), ``rmse_object_naive`` and ``naive_scale`` (Patro's naive normals,
         computed here from the file's geometry and material with the precompute's defaults), its
@@ -99,6 +109,7 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         raise VerifyError(f"verify: reference must be one of {list(REFERENCES)}, got {reference_sum!r}")
     if technique not in NAMES:
         raise VerifyError(f"verify: technique must be one of {list(NAMES)}, got {technique!r}")
+    t_start = time.perf_counter()
     hooks = BY_NAME[technique]
     path = Path(path)
     light_world = light_direction(light_dir)
@@ -121,8 +132,9 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         intensity = float(np.linalg.norm(point - centre) * next(iter(mm_world))) ** 2
 
     drawn, sss_items, timed_items, ref_items, lambert_items = [], [], [], [], []
-    self_references, dipole_references = [], 0  # (resolution, steps) of each self-reference
+    self_references, dipole_references, checks = [], 0, []  # (resolution, steps) of each self-reference
     runtime, memo = {"lpv_steps": lpv_steps}, {}  # the hooks' settings and what they keep across units
+    references = {} if references is None else references
     t_ref = time.perf_counter()
     for mi, unit, world in instances:
         prim, material, mm, surface, weld = unit_surface(file, scene, mi, unit)
@@ -149,8 +161,14 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
             ref_items.append(own[0])
             self_references.append(own[1])
         else:
-            ref = reference_scattering(surface, mm, material, light, clustered=reference_sum == "clustered")[:, weld]
-            ref_items.append({**base, "q": ref.T})
+            key = (str(path), mi, tuple(unit), world.tobytes(), light, reference_sum)
+            if key not in references:
+                references[key] = (checked_reference(surface, mm, material, light) if reference_sum == "checked" else
+                                   (reference_scattering(surface, mm, material, light,
+                                                         clustered=reference_sum == "clustered"), None))
+            ref, check = references[key]
+            checks += [check] if check is not None else []
+            ref_items.append({**base, "q": ref[:, weld].T})
             dipole_references += 1
         compared, timed = hooks.verify_items(at, data, runtime)
         drawn.append(at)
@@ -217,6 +235,8 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         # plain: the standard Lambert + specular shader, no SSS data
         "frame_ms_plain": renderer.frame_ms(plain_items, camera, light, frames),
         "reference_seconds": reference_seconds,
+        **({"reference_check": check_figures(checks, exposure)} if checks else {}),
+        "seconds": time.perf_counter() - t_start,
         "exposure": exposure,
         "image_size": [size, size],
         "pngs": pngs,

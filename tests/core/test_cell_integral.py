@@ -58,3 +58,29 @@ def test_channels_are_the_call_channel_first():
     r = np.random.default_rng(2).random((7, 5)) * 4.0
     table = Cumulative.build(P)
     np.testing.assert_array_equal(table.channels(r), np.moveaxis(table(r), -1, 0))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_rule_equals_the_polar_quadrature(seed):
+    # The compiled rule (atan2 angles, G_i e^(f·slope) by a Taylor polynomial) against the polar
+    # Gauss-Legendre sum written out with the numpy G (`Cumulative.__call__`): equal to rounding,
+    # for triangles from needle-thin to wide, and from tiny (below G's table) to far beyond it.
+    rng = np.random.default_rng(seed)
+    p = profile_for(preset("skin2"))
+    table = Cumulative.build(p)
+    scale = np.exp(rng.uniform(np.log(1e-6), np.log(50.0), 200))[:, None]
+    apex, e1, e2 = (rng.normal(size=(200, 3)) * scale for _ in range(3))
+    e2[:20] = e1[:20] * 3.0 + 1e-4 * e2[:20]  # needles
+    x, w = np.polynomial.legendre.leggauss(8)
+    double_area = np.linalg.norm(np.cross(e1, e2), axis=1)
+    angle = np.arctan2(double_area, np.einsum("ij,ij->i", e1, e2))
+    edge = e2 - e1
+    length = np.linalg.norm(edge, axis=1)
+    along = -np.einsum("ij,ij->i", e1, edge) / length
+    foot = double_area / length
+    to_foot = np.arctan2(np.abs(along), foot) * np.sign(along)
+    phi = 0.5 * angle[:, None] * (x + 1.0)
+    rho = foot[:, None] / np.cos(phi - to_foot[:, None])
+    expected = np.einsum("k,mkc->mc", w, table(rho)) * (angle / (4.0 * np.pi))[:, None]
+    got = apex_triangle(apex, apex + e1, apex + e2, table, nodes=8)
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())

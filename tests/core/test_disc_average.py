@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from sssbake.pipeline.core.profile import classical_dipole, diffuse_reflectance_profile, disc_integral, profile_for
-from sssbake.pipeline.core.disc_average import DiscMean, disc_mean_exact
+from disc_reference import disc_expansion, disc_mean, disc_mean_exact
+
+from sssbake.pipeline.core.disc_average import DiscMean
 from sssbake.pipeline.core.materials import preset
 
 # Strongly absorbing, marble-like and nearly non-absorbing channels in one material.
@@ -37,7 +39,7 @@ def test_tilted_disc(a, t, lift):
     expected = grid_mean(d, a, h)
     np.testing.assert_allclose(disc_mean_exact(d, a, P, h), expected, rtol=3e-4)
     table = DiscMean.build(P, np.array([a]))
-    got = table(np.array([np.hypot(d, h)]), np.array([a]), np.array([h]))[0]
+    got = disc_mean(table, np.array([np.hypot(d, h)]), np.array([a]), np.array([h]))[0]
     # Beyond the table the expansion's error grows as (σ_tr a)⁴ (1.5⁴ in the absorbing channel).
     assert np.all(np.abs(got / expected - 1) < 3e-3 + (P.sigma_tr * a) ** 4 / 100)
 
@@ -53,14 +55,14 @@ def test_limits():
     # Far away it is the point value plus the curvature term: error ~(σ_tr a)⁴/200 (4e-5 here).
     table = DiscMean.build(P, np.array([0.2]))
     far = np.array([30.0])
-    np.testing.assert_allclose(table(far, np.array([0.2]), np.zeros(1)), disc_mean_exact(far, 0.2, P), rtol=1e-4)
-    np.testing.assert_allclose(table(np.ones(1), np.zeros(1), np.zeros(1)), diffuse_reflectance_profile(np.ones(1), P),
+    np.testing.assert_allclose(disc_mean(table, far, np.array([0.2]), np.zeros(1)), disc_mean_exact(far, 0.2, P), rtol=1e-4)
+    np.testing.assert_allclose(disc_mean(table, np.ones(1), np.zeros(1), np.zeros(1)), diffuse_reflectance_profile(np.ones(1), P),
                                rtol=1e-12)
     # Far beyond a disc small against 1/σ_tr: the point value, within the spread term it leaves out.
     tiny = DiscMean.build(P, np.array([0.05]))
     d = np.array([5.0])
     exact = disc_mean_exact(d, 0.05, P)
-    got = tiny(d, np.array([0.05]), np.zeros(1))
+    got = disc_mean(tiny, d, np.array([0.05]), np.zeros(1))
     np.testing.assert_allclose(got, diffuse_reflectance_profile(d, P), rtol=1e-12)
     assert np.all(np.abs(got / exact - 1) < 4e-3)
 
@@ -77,7 +79,7 @@ def test_table_matches_exact_mean(name, model, worst):
     d = a * rng.uniform(0.0, 8.0, 4000)
     table = DiscMean.build(p, a)
     exact = disc_mean_exact(d, a, p)
-    got_all = table(d, a, np.zeros_like(d))
+    got_all = disc_mean(table, d, a, np.zeros_like(d))
     for c in range(3):
         got = got_all[:, c]
         assert np.all(np.isfinite(got)) and np.all(got > 0)
@@ -86,10 +88,9 @@ def test_table_matches_exact_mean(name, model, worst):
 
 
 def test_expansion_matches_its_derivative_form():
-    # `_disc_expansion` sums e^(-P)/D³ polynomials; it must equal Rd + (a²/8)(Rd''(1 - c²) +
+    # `disc_expansion` sums e^(-P)/D³ polynomials; it must equal Rd + (a²/8)(Rd''(1 - c²) +
     # Rd'/r (1 + c²)) from `profile_derivatives`, Rd'/r -> Rd'' at r = 0, clipped at 0.
     from sssbake.pipeline.core.profile import profile_derivatives
-    from sssbake.pipeline.core.disc_average import _disc_expansion
 
     rng = np.random.default_rng(5)
     r = np.r_[0.0, 1e-3, rng.random(2000) * 40.0]
@@ -101,5 +102,5 @@ def test_expansion_matches_its_derivative_form():
         f, f1, f2 = profile_derivatives(r, P, c)
         slope = np.divide(f1, r, out=f2.copy(), where=r > 0)
         expected[:, c] = np.maximum(f + 0.125 * a**2 * (f2 * (1.0 - c2) + slope * (1.0 + c2)), 0.0)
-    got = _disc_expansion(r, a, h, P)
+    got = disc_expansion(r, a, h, P)
     np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12 * expected.max())

@@ -165,8 +165,8 @@ def test_far_kernel_table_interpolates_to_its_bound():
 
 
 def test_chunked_assembly_gives_the_same_matrices(monkeypatch):
-    # The build computes entries in chunks of rows (ENTRIES_PER_CHUNK bounds its memory): small
-    # chunks must give exactly the matrices of one chunk, and a float32 `out` (the precompute's
+    # The build hands out blocks of rows to its threads (ENTRIES_PER_CHUNK candidate pairs each):
+    # small blocks must give exactly the matrices of one block, and a float32 `out` (the precompute's
     # q) the float32 products themselves.
     from sssbake.pipeline.core import scatter_operator as module
 
@@ -184,3 +184,57 @@ def test_chunked_assembly_gives_the_same_matrices(monkeypatch):
     signal = lit(normals, k=9)
     q32 = chunked.apply(signal, out=np.empty((3, len(x), 9), dtype=np.float32))
     np.testing.assert_array_equal(q32, chunked.apply(signal).astype(np.float32))
+
+
+def test_compiled_entries_equal_their_numpy_definitions():
+    # The compiled build (`scatter_kernels`) against the formulation it replaced: each row's
+    # exact pairs in the order of its cells' vertex runs, with `NearField.weights`, and each
+    # cluster term Rd(D) + ½ tr(H Σ) from the kernel table, in numpy; same pattern, values
+    # within float32 rounding. A bumpy sphere, so that sources sit off each other's planes.
+    from sssbake.pipeline.core.scatter_operator import scatter_plan
+
+    x, f, _, normals = sphere(12.0, subdivisions=3)
+    x = x * (1.0 + 0.04 * np.sin(3.0 * x[:, :1]))
+    normals = area_weighted_normals(x, f)
+    p = profile_for(preset("ketchup"))
+    plan = scatter_plan(x, f, normals, p, ScatterOptions(float32=False))
+    n = len(x)
+    rows = np.arange(0, n, 3)
+    near, levels = plan.matrices(rows)
+    field, r = plan.builder.field, plan.radius_mm
+    vertex_ptr = np.r_[plan.starts[0], n]
+    for j, o in enumerate(rows):
+        cell = plan.cell_of[0][o]
+        sources = np.concatenate([np.arange(vertex_ptr[g], vertex_ptr[g + 1])
+                                  for g in plan.near_lists[plan.near_ptr[cell]:plan.near_ptr[cell + 1]]])
+        d = np.linalg.norm(x[plan.order][sources] - x[plan.order][o], axis=1)
+        weights = field.weights(np.full(len(sources), o), sources)
+        for c in range(3):
+            row = c * len(rows) + j
+            got = slice(near.indptr[row], near.indptr[row + 1])
+            np.testing.assert_array_equal(near.indices[got], sources[d <= r[c]])
+            np.testing.assert_allclose(near.data[got], weights[d <= r[c], c], rtol=1e-12)
+    table = plan.builder.table
+    xt = plan.positions.T
+    assert levels
+    for (level, clusters), far in zip(plan.far[::-1], levels):
+        m = clusters.count
+        for j, o in enumerate(rows):
+            key = plan.cell_of[level][o]
+            s = clusters.lists[clusters.ptr[key]:clusters.ptr[key + 1]]
+            off = xt[:, o, None] - clusters.centroid[:, s]
+            d2 = (off**2).sum(axis=0)
+            sp6 = clusters.spread[:, s]
+            radial = (sp6[0] * off[0]**2 + sp6[1] * off[1]**2 + sp6[2] * off[2]**2
+                      + 2.0 * (sp6[3] * off[0] * off[1] + sp6[4] * off[0] * off[2] + sp6[5] * off[1] * off[2])) / d2
+            at = (0.5 * np.log(d2) - table.log_lo) / table.step
+            node = np.clip(at.astype(np.int64), 0, table.nodes - 2)
+            w = at - node
+            for c in range(3):
+                keep = np.sqrt(d2) <= r[c]
+                terms = table.value[c][:, node] + w * table.slope[c][:, node]  # (3 terms, entries)
+                kernel = terms[0] + terms[1] * radial + terms[2] * clusters.trace[s]
+                row = c * len(rows) + j
+                got = slice(far.matrix.indptr[row], far.matrix.indptr[row + 1])
+                np.testing.assert_array_equal(far.matrix.indices[got], c * m + s[keep])
+                np.testing.assert_allclose(far.matrix.data[got], kernel[keep], rtol=1e-9)

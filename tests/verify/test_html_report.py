@@ -108,6 +108,23 @@ def test_techniques_worse_than_best_fit_lambert_are_marked_and_counted(tmp_path,
                                    [check["rmse_object"], check["lambert_rmse_object"]], rtol=2e-3, atol=1e-4)
     assert "2 techniques worse than best-fit Lambert (object RMSE at 160² on the full asset): block.obj screen " \
         in text
+    # what the verification cost, in each report JSON and on the page: seconds, and as a fraction of the bake
+    for name, techniques in (("ball", ["screen"]), ("block", ["screen", "lpv"])):
+        cost = json.loads((out / f"{name}.report.json").read_text())["verification"]
+        assert list(cost["techniques"]) == techniques and cost["seconds"] > 0
+        assert cost["seconds"] == pytest.approx(sum(c["seconds"] for c in cost["techniques"].values()), abs=2e-3)
+        assert cost["bake_fraction"] == pytest.approx(cost["seconds"] / cost["bake_seconds"], rel=1e-3)
+        assert f"verification {cost['seconds']:.2f} s ({cost['bake_fraction']:.2f} × the bake)" in text
+    # screen is checked against the dipole reference, every vertex of the 642-vertex ball sampled;
+    # lpv against its own (the field at twice the grid), nothing sampled
+    ball = json.loads((out / "ball.report.json").read_text())["verification"]["techniques"]["screen"]
+    assert ball["reference"] == "checked"
+    assert ball["reference_check"]["vertices"] == ball["reference_check"]["of"] == 642
+    lo, hi = ball["reference_check"]["rms_ci95"]
+    assert 0 < lo <= ball["reference_check"]["rms"] <= hi < 0.01
+    assert "exact sums at 642 of 642 vertices and energy scales of" in text
+    block = json.loads((out / "block.report.json").read_text())["verification"]["techniques"]["lpv"]
+    assert block["reference_check"] is None
 
 
 @pytest.mark.skipif(not any(shutil.which(b) for b in ("chromium", "chromium-browser", "google-chrome")),

@@ -5,11 +5,13 @@ from pathlib import Path
 
 import numpy as np
 import pygltflib
+import pytest
 import trimesh
 from generate import generate
 from PIL import Image
 
 from sssbake.pipeline.cli import main
+from sssbake.pipeline.verify.verify import verify_file
 from sssbake.pipeline.techniques.spectral.reader import NORMAL_ATTRIBUTE, read_spectral_glb
 from sssbake.pipeline.techniques.spectral.tradeoff import NORMAL_BYTES
 
@@ -48,6 +50,23 @@ def test_uncompressed_prt_beats_lambert_against_the_reference(tmp_path, capsys):
     clustered = json.loads(capsys.readouterr().out)
     assert clustered["reference"] == "clustered" and result["reference"] == "exact"
     assert abs(clustered["rmse_object"] - result["rmse_object"]) < 0.1 * result["rmse_object"]
+    # checked (--report's): the clustered reference, and how far from the exact one its figures can be
+    assert main(["verify", str(out / "sphere.glb"), "--size", "96", "--frames", "2", "--json",
+                 "--reference", "checked"]) == 0
+    checked = json.loads(capsys.readouterr().out)
+    assert checked["reference"] == "checked" and checked["rmse_object"] == pytest.approx(clustered["rmse_object"],
+                                                                                          rel=1e-9)
+    check = checked["reference_check"]
+    assert check["vertices"] == check["of"] and check["sources"] > 0 and check["rms_ci95"][0] <= check["rms"]
+    assert abs(checked["rmse_object"] - result["rmse_object"]) <= check["rms"]  # the bound holds against exact
+    # one reference for every technique verify_file is given it for: computed once, read after
+    references = {}
+    first = verify_file(out / "sphere.glb", size=48, out_dir=tmp_path, frames=1, reference_sum="checked",
+                        references=references)
+    (held,) = references.values()
+    again = verify_file(out / "sphere.glb", size=48, out_dir=tmp_path, frames=1, reference_sum="checked",
+                        references=references)
+    assert list(references.values()) == [held] and again["rmse_object"] == first["rmse_object"]
     assert main(["verify", str(out / "sphere.glb"), "--light-pos", "1,2"]) == 1
     assert "--light-pos takes three comma-separated numbers" in capsys.readouterr().err
     assert main(["verify", str(out / "sphere.glb"), "--light-pos", "2,1,1"]) == 1  # inside the ball
@@ -73,7 +92,9 @@ def test_kernels_export_renders_close_to_the_reference_and_blending_matters(tmp_
     for blend in ("optimised", "none"):
         out = tmp_path / blend
         assert main(["bake", str(src / "sphere.obj"), "-o", str(out), "--config", str(src / "sssbake.toml"),
-                     "--techniques", "kernels", "--atlas-resolution", "128", "--kernels-blend", blend, "-q"]) == 0
+                     "--techniques", "kernels", "--atlas-resolution", "128", "--kernels-blend", blend,
+                     # every entry of F: the blending's effect, not the bound's (tests/techniques/kernels)
+                     "--kernels-f-bytes", "0", "-q"]) == 0
         capsys.readouterr()
         assert main(["verify", str(out / "sphere.glb"), "--technique", "kernels", "--size", "96", "--frames", "2",
                      "--json"]) == 0

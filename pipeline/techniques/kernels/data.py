@@ -71,7 +71,10 @@ class KernelsData:
     f_indices : (nnz,) int64
         Source vertex of each entry, sorted within a row.
     f_values : (nnz, 3) float32
-        ``F_ij = (A_i / 3) Rd(|v_i - v_j|)`` per channel, diagonal dropped.
+        ``F_ij = (A_i / 3) Rd(|v_i - v_j|)`` per channel, diagonal dropped; under a byte bound
+        each source's strongest entries beyond the kernels' window, scaled to send what all of its
+        entries there sent
+        (`throughput.strongest_per_source`).
     border_texels : (b,) int64
         ``row · width + col`` of every border texel, strictly increasing, none covered.
     border_vertices : (b, 3) int64

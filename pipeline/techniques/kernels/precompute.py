@@ -16,8 +16,13 @@ Discretisation (float64 throughout, lengths in mm):
   ``g(y, s) = Σ_β ψ_β(y) [Σ_α dual_α(s) F'_αβ + [β ∈ s's corners] w_β(s)]`` with F' = F without
   its diagonal and w the blending weights.
 - Global mesh: F, the distribution and the blending live on the surface's vertices, or on a
-  simplified copy when the surface has more than ``global_vertices`` (texel points located on it,
-  `surface_locate`; each surface vertex then blends three of its vertices).
+  simplified copy when the surface has more than ``global_vertices`` or more than F's byte budget
+  allows (texel points located on it, `surface_locate`; each surface vertex then blends three of its
+  vertices).
+- F's bytes (``f_bytes`` per surface vertex, `global_budget`): the global mesh gets at most as
+  many vertices as leave `ROW_ENTRIES` entries each, and each source keeps its strongest entries
+  beyond the kernels' window within the budget, renormalised to send what its entries beyond the
+  window sent (`throughput.strongest_per_source`); the blending below fits the kernels to that F.
 - Blending (``blend="optimised"``, `_blend`): w(s) per channel by least squares so that g matches T
   on the ring of texels at chessboard distance r + 1 around s (the boundary of the (k + 2)² kernel,
   where the k² kernel no longer reaches), ridge-regularised towards w0 = dual(s) F_αα (the dropped
@@ -64,6 +69,21 @@ DUAL_TOLERANCE = 0.2
 CONSTRAIN = 0.05
 #: ... and where meeting it moves the weights by at most about this many times w0.
 STEER_LIMIT = 1.0
+#: Entries per global vertex the byte budget aims for when it chooses the global mesh. Narrow rows
+#: on the surface's own vertices beat a coarse mesh with wide ones: the blending corrects F only
+#: within the kernel's window, and hats wider than it smear the light (hand, skin1, 64 B per
+#: vertex, q at the texels against unbounded F: 4 entries on all 7,993 vertices 0.079 uniform /
+#: 0.110 directional, 16 on 2,245 vertices 0.175 / 0.190, 31 on 1,133 vertices 0.28 / 0.30;
+#: benchmarks/README.md#kernels-f-bounded).
+ROW_ENTRIES = 4
+#: Fewest vertices a budget makes the global mesh (a coarser one no longer follows the shape).
+MIN_GLOBAL = 100
+#: Bytes of one stored F entry: three float32 values and a uint16 or uint32 source index, and of
+#: one row's fIndptr.
+F_VALUE_BYTES, F_ROW_BYTES = 12, 4
+#: GL_MAX_TEXTURE_SIZE the runtimes may count on (desktop GPUs and WebGL 2 on them): every table
+#: is wrapped into textures no wider or taller (`runtime.wrap_width`).
+GL_TEXTURE_LIMIT = 16384
 #: Texels per chunk of the fit and kernel passes (bounds the pair arrays to ~100 MB).
 CHUNK = 4096
 THREADS = 2
@@ -85,7 +105,10 @@ class KernelsPrecomputeOptions:
         Weight of the pull towards w0 in the blending fit, per ring texel.
     global_vertices : int
         Surfaces with more vertices get their global response (F, the distribution and the
-        blending) on a copy simplified to about this many vertices; 0: always on the surface.
+        blending) on a copy simplified to about this many vertices; 0: only when `f_bytes` asks.
+    f_bytes : float
+        Largest size of F (fIndptr, fIndices, fValues as stored) per welded surface vertex, in
+        bytes (`global_budget`); 0: unbounded (F as thresholded, on at most `global_vertices`).
     """
 
     kernel_size: int = 7
@@ -94,6 +117,7 @@ class KernelsPrecomputeOptions:
     seams: str = "unfold"
     ridge: float = 0.005
     global_vertices: int = 20_000
+    f_bytes: float = 64.0
 
     def check(self) -> None:
         if not (isinstance(self.kernel_size, int) and 3 <= self.kernel_size <= 15 and self.kernel_size % 2):
@@ -105,11 +129,49 @@ class KernelsPrecomputeOptions:
                              f"got {self.blend!r}, {self.seams!r}")
         if not (isinstance(self.global_vertices, int) and (self.global_vertices == 0 or self.global_vertices >= 100)):
             raise ValueError(f"kernels: global_vertices must be 0 or at least 100, got {self.global_vertices!r}")
+        if not (isinstance(self.f_bytes, (int, float)) and (self.f_bytes == 0 or self.f_bytes >= 16)):
+            raise ValueError(f"kernels: f_bytes must be 0 (unbounded) or at least 16, got {self.f_bytes!r}")
         if not (0 < self.ridge < 1):
             raise ValueError(f"kernels: ridge must be in (0, 1), got {self.ridge!r}")
 
 
 KERNELS_DEFAULTS = KernelsPrecomputeOptions()
+
+
+def f_entry_bytes(vertex_count: int) -> int:
+    """Bytes of one stored F entry over `vertex_count` global vertices (uint16 indices below 65536)."""
+    return F_VALUE_BYTES + (2 if vertex_count < 65536 else 4)
+
+
+def global_budget(surface_vertices: int, options: KernelsPrecomputeOptions) -> int:
+    """Vertices of the global mesh for a surface of `surface_vertices` welded vertices: the surface's
+    own count, capped by ``global_vertices`` and, with a byte budget, by what leaves `ROW_ENTRIES`
+    entries per global vertex (never below `MIN_GLOBAL`, nor above the surface's)."""
+    n = surface_vertices
+    if options.global_vertices:
+        n = min(n, options.global_vertices)
+    if options.f_bytes:
+        room = options.f_bytes * surface_vertices
+        n = min(n, max(MIN_GLOBAL, int(room / (ROW_ENTRIES * f_entry_bytes(n) + F_ROW_BYTES))))
+    return min(n, surface_vertices)
+
+
+def entries_per_source(surface_vertices: int, global_vertices: int, f_bytes: float) -> int:
+    """Entries each source of F keeps so that F fits ``f_bytes`` per surface vertex; 0: unbounded.
+
+    Raises
+    ------
+    ValueError
+        The budget does not hold one entry per global vertex (naming ``--kernels-f-bytes``).
+    """
+    if not f_bytes:
+        return 0
+    room = f_bytes * surface_vertices - F_ROW_BYTES * (global_vertices + 1)
+    keep = int(room // (f_entry_bytes(global_vertices) * global_vertices))
+    if keep < 1:
+        raise ValueError(f"kernels: F's budget of {f_bytes:g} B per vertex holds no entry for {global_vertices} global "
+                         f"vertices over {surface_vertices}; raise --kernels-f-bytes")
+    return keep
 
 
 @dataclass(frozen=True, eq=False)
@@ -168,6 +230,11 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     texels = rasterize_atlas(parts, width, height)
     if not len(texels.rows):
         raise ValueError(f"kernels: the {width} x {height} atlas covers no texel centre; raise atlas_resolution")
+    # said before the expensive steps: a runtime could not hold the kernel weights in one texture
+    if len(texels.rows) * k * k > GL_TEXTURE_LIMIT**2:
+        raise ValueError(f"kernels: {len(texels.rows)} covered texels x {k * k} kernel weights pass the "
+                         f"{GL_TEXTURE_LIMIT} x {GL_TEXTURE_LIMIT} texels a GPU table holds; lower --atlas-resolution "
+                         f"(now {max(width, height)}) or --kernels-size (now {k})")
     layout = atlas_surface(atlas, surface)
     real_face = layout.part_face_offset[texels.part] + texels.face
     pixels = texels.rows * width + texels.cols
@@ -199,10 +266,12 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
         real_of[s_count:] = cKDTree(x[:s_count]).query(x[s_count:])[1]
 
     # The global response's mesh: the surface itself, or a simplified copy when it is denser than
-    # `global_vertices` (Lensch et al. ran on meshes under 20,000 triangles; F grows as n^4/3).
+    # `global_vertices` or F's byte budget allows (Lensch et al. ran on meshes under 20,000
+    # triangles; F grows as n^4/3).
     n_s = len(surface.positions)
-    if options.global_vertices and n_s > options.global_vertices:
-        simple = simplify(surface.positions, surface.faces, target_count=2 * options.global_vertices)
+    wanted = global_budget(n_s, options)
+    if wanted < n_s:
+        simple = simplify(surface.positions, surface.faces, target_count=2 * wanted)
         g_pos, g_faces = simple.positions, simple.faces
         g_normals = area_weighted_normals(g_pos, g_faces)
         faces, bary = locate_on_mesh(np.r_[texels.positions, border_positions], g_pos, g_faces)
@@ -219,8 +288,13 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     seconds["distribution"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    # Under a byte bound F keeps only entries beyond the kernels' window (r texels): inside it the
+    # blended kernels give the true response whatever F holds, and light F put there would be lost.
+    correct_kernels = options.blend != "none"
     throughput = throughput_matrix(g_pos * mm_per_unit, g_faces, g_normals, params, options.threshold,
-                                   diagonal=options.blend == "none")
+                                   diagonal=options.blend == "none",
+                                   per_source=entries_per_source(n_s, len(g_pos), options.f_bytes),
+                                   beyond_mm=r * float(np.sqrt(np.median(area[:s_count]))) if correct_kernels else 0.0)
     seconds["throughput"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -252,6 +326,7 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
         "charts": int(layout.face_chart.max() + 1), "atlasCoverage": s_count / float(width * height),
         "verticesResampled": int(resampled), "verticesWithoutTexels": int(lost),
         "globalVertices": int(n), "nnz": throughput.nnz, "nnzPerVertex": throughput.nnz / max(n, 1),
+        "fMoved": throughput.moved,
         "throughputRadiusMm": throughput.radius_mm, "throughputSent": throughput.sent.tolist(), **misfit,
     }
     return KernelsPrecompute(data, bary[:s_count], texels.positions, texels.normals, area[:s_count] / mm2,

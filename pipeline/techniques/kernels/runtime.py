@@ -16,7 +16,8 @@ Layouts. Atlas textures hold atlas row r in texture row r: the atlas pass sends 
 framebuffer row 0, which is texture row 0, and ``texture(map, uv)`` reads glTF UVs as they are, so
 nothing is flipped. Per-vertex textures hold welded vertex j at texel (j % w, j / w), w =
 min(table width, n). Long tables (kernel weights, CSR entries) are wrapped the same way by
-`gl_passes.table_texture`; the shaders never divide: a texel's kernel, a CSR row and an entry's
+`gl_passes.table_texture`, each widened past the table width where its rows would pass
+GL_MAX_TEXTURE_SIZE (`wrap_width`: up to limit² entries a table); the shaders never divide: a texel's kernel, a CSR row and an entry's
 source are given as texels, computed here. `KERNELS_DRAW` is the renderer's ``kernels`` draw.
 """
 
@@ -74,7 +75,7 @@ class KernelsPasses(OwnedObjects):
         super().__init__()
         self._limit = ctx.info["GL_MAX_TEXTURE_SIZE"]
         w, h, n = self.data.width, self.data.height, self.data.vertex_count
-        self.vertex_width = min(table_width, n)
+        self.vertex_width = wrap_width(n, table_width, self._limit)
         vertex_size = (self.vertex_width, -(-n // self.vertex_width))
         if max(w, h) > self._limit:
             raise ValueError(f"kernels runtime: a {w} x {h} atlas is over GL_MAX_TEXTURE_SIZE {self._limit}")
@@ -104,7 +105,8 @@ class KernelsPasses(OwnedObjects):
         w, h, n = data.width, data.height, data.vertex_count
 
         def table(name, rows, dtype, width=table_width):
-            return self._keep(table_texture(ctx, np.ascontiguousarray(rows), dtype, width, self._limit,
+            return self._keep(table_texture(ctx, np.ascontiguousarray(rows), dtype,
+                                            wrap_width(len(rows), width, self._limit), self._limit,
                                             f"kernels runtime: {name}"))
 
         # Step 2: a texel's k² weights are consecutive; the W x H map points at the first.
@@ -248,6 +250,12 @@ class KernelsPasses(OwnedObjects):
 
     def _target(self, texture):
         return self._keep(self.ctx.framebuffer(color_attachments=[texture]))
+
+
+def wrap_width(count: int, width: int, limit: int) -> int:
+    """Width of a table of `count` entries wrapped `width` wide, widened (up to `limit`) until its
+    rows fit `limit`; a table over limit² entries keeps `limit` and is refused by the caller."""
+    return min(limit, max(min(width, max(count, 1)), -(-count // limit)))
 
 
 def _texels(index: np.ndarray, width: int) -> np.ndarray:

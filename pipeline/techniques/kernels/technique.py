@@ -12,7 +12,7 @@ from sssbake.pipeline.techniques.technique import MESH, Technique
 class Kernels(KernelsStage, KernelsVerify, KernelsTradeoff, Technique):
     name = "kernels"
     scope = MESH
-    stage_version = 3
+    stage_version = 4
     needs_atlas = True
     options_type = KernelsOptions
     draw_unit = "mesh"

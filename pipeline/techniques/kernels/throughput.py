@@ -11,6 +11,11 @@ while the cells' integrals tile the plane and sum to R_d.
 The threshold is on the largest channel of an entry, so all three channels share one sparsity
 pattern. Pairs are found per chunk of receivers with a k-d tree over a radius that bounds every
 kept entry (Rd falls monotonically with distance), so no dense N × N matrix is ever formed.
+
+With a per-source entry bound (`strongest_per_source`, the budget that bounds F's bytes) each
+source keeps only its largest entries, scaled per channel so that it still sends what all of its
+entries sent (the light a source sends is kept; where it lands moves towards the source). The
+build then holds only the candidates for those entries (`_source_cuts`), never all of F.
 """
 
 from __future__ import annotations
@@ -52,6 +57,9 @@ class Throughput:
         Σ_ij F_ij (A_j / 3) / (R_d Σ_i A_i / 3) per channel: what F carries, relative to what
         the sources would send out over an infinite plane (the diagonal, the threshold and the
         object's finite extent all lower it).
+    moved : float
+        Share of the carried light (summed over channels) that the per-source bound moved from the
+        dropped entries onto the kept ones of the same source (0 without a bound).
     radius_mm : float
         The search radius: no entry farther apart reaches the threshold.
     field : NearField
@@ -67,6 +75,7 @@ class Throughput:
     radius_mm: float
     field: NearField
     table: ProfileTable
+    moved: float = 0.0
 
     @property
     def nnz(self) -> int:
@@ -111,7 +120,8 @@ def throughput_values(field: NearField, table: ProfileTable, threshold: float, s
 
 
 def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: Profile,
-                      threshold: float, diagonal: bool = False, max_entries: int = MAX_ENTRIES) -> Throughput:
+                      threshold: float, diagonal: bool = False, max_entries: int = MAX_ENTRIES,
+                      per_source: int = 0, beyond_mm: float = 0.0) -> Throughput:
     """All entries of F at or above `threshold` (see the module docstring).
 
     Parameters
@@ -127,6 +137,12 @@ def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.n
         Keep F_ii (the unblended technique); the blended one zeroes them.
     max_entries : int
         Refuse (ValueError naming the fix) when a sample of receivers predicts more entries.
+    per_source : int
+        Keep at most this many entries per source (`strongest_per_source`); 0: all.
+    beyond_mm : float
+        With `per_source`: only entries whose receiver lies farther than this from the source are
+        kept, and only their light is renormalised onto the kept ones (the kernels' window, where
+        the blended kernels give the true response whatever F holds).
     """
     field = NearField.build(positions_mm, faces, normals, params)
     x, cell = field.positions, field.area
@@ -142,10 +158,13 @@ def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.n
     group = np.searchsorted(classes, cell)
     groups = [(np.flatnonzero(group == g), reach[g]) for g in range(len(reach)) if np.any(group == g)]
     trees = [(members, cKDTree(x[members]), r) for members, r in groups]
-    estimate = _estimated_entries(x, trees, field, table, threshold, diagonal)
+    # with a bound only candidates of each source's strongest entries are held (`_source_cuts`)
+    cut = _source_cuts(x, field, table, threshold, diagonal, per_source, beyond_mm) if per_source else None
+    estimate = 0.0 if per_source else _estimated_entries(x, trees, field, table, threshold, diagonal)
     if estimate > max_entries:
         raise ValueError(f"kernels: F would hold ~{estimate / 1e6:.0f}M entries ({estimate * 16 / 2**30:.1f} GB) at "
-                         f"threshold {threshold:g}; raise the threshold (--kernels-threshold) or simplify the mesh")
+                         f"threshold {threshold:g}; bound it (--kernels-f-bytes, 64 by default), raise the threshold "
+                         "(--kernels-threshold) or simplify the mesh")
 
     # Each source's cell bounds its point-rule value, so the candidates (searched as far as the
     # source's class reaches) that fall short of the threshold are dropped before the sort and the
@@ -164,18 +183,99 @@ def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.n
         receiver, source, d2 = receiver[order] + start, source[order], d2[order]
         value = throughput_values(field, table, threshold, source, receiver, diagonal, d2)
         keep = value[:, 0] + value[:, 1] + value[:, 2] > 0
+        if per_source and beyond_mm > 0:  # inside the kernels' window their light replaces F's
+            keep &= d2 > beyond_mm * beyond_mm
+        # what each source sends with all its entries (the bound's renormalisation), then its candidates
+        energy = value * (cell[receiver] * keep)[:, None]
+        sends = (np.stack([np.bincount(source, weights=energy[:, c], minlength=n) for c in range(3)], axis=1)
+                 if per_source else None)
+        if per_source:
+            keep &= value.max(axis=1) >= cut[source]
         return (np.bincount(receiver[keep] - start, minlength=stop - start), source[keep],
-                value[keep].astype(np.float32), cell[receiver] @ value)
+                value[keep].astype(np.float32), cell[receiver] @ value, sends)
 
     with ThreadPoolExecutor(THREADS) as pool:
-        counts, indices, values, sent = zip(*pool.map(rows, range(0, n, CHUNK))) if n else ([], [], [], [])
+        counts, indices, values, sent, sends = (zip(*pool.map(rows, range(0, n, CHUNK))) if n
+                                                else ([], [], [], [], []))
     # one field at a time, each chunk's copy dropped once joined: the peak holds F once and one field twice
     indptr = np.r_[0, np.cumsum(np.concatenate(counts) if n else np.zeros(0, np.int64))].astype(np.int64)
     values = np.concatenate(values) if n else np.zeros((0, 3), np.float32)
     indices = np.concatenate(indices) if n else np.zeros(0, np.int64)
     sent = np.sum(sent, axis=0) if n else np.zeros(3)
     total = profile_total(params) * max(float(cell.sum()), 1e-300)
-    return Throughput(indptr, indices, values, sent / total, radius, field, table)
+    moved = 0.0
+    if per_source and n:
+        indptr, indices, values, moved = strongest_per_source(indptr, indices, values, cell, per_source,
+                                                              np.sum(sends, axis=0))
+    return Throughput(indptr, indices, values, sent / total, radius, field, table, moved)
+
+
+def strongest_per_source(indptr: np.ndarray, indices: np.ndarray, values: np.ndarray, cell: np.ndarray, keep: int,
+                         sends: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """F with at most `keep` entries per source (column): its largest by the largest channel, each
+    channel of a source's kept entries scaled so that it sends ``Σ_j F_ij A_j`` as before.
+
+    Parameters
+    ----------
+    indptr : (n + 1,) int64
+    indices : (nnz,) int64
+    values : (nnz, 3) float32
+        F as CSR by receiver, sources increasing within a row.
+    cell : (n,) float64
+        The receivers' cell areas A_j (what each receiver's radiosity stands for).
+    keep : int
+        >= 1.
+    sends : (n, 3) float64, optional
+        ``Σ_j F_ij A_j`` per source over all of F, where `values` hold only some of its entries
+        (those that may be among each source's strongest); by default the sums of `values`.
+
+    Returns
+    -------
+    indptr, indices, values
+        The bounded F, same layout.
+    moved : float
+        The share of Σ_ij F_ij A_j (all channels) that had to move onto the kept entries.
+    """
+    n = len(indptr) - 1
+    receiver = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
+    strength = values.max(axis=1)
+    # by source, then strongest first: an entry's rank within its source is its place in the run
+    order = np.lexsort((-strength, indices))
+    runs = np.bincount(indices, minlength=n)
+    rank = np.arange(len(order)) - np.repeat(np.cumsum(runs) - runs, runs)
+    kept = np.zeros(len(order), dtype=bool)
+    kept[order[rank < keep]] = True
+    energy = values.astype(np.float64) * cell[receiver, None]
+    before = (np.stack([np.bincount(indices, weights=energy[:, c], minlength=n) for c in range(3)], axis=1)
+              if sends is None else sends)
+    after = np.stack([np.bincount(indices[kept], weights=energy[kept, c], minlength=n) for c in range(3)], axis=1)
+    # every source keeps its strongest entry, so `after` is 0 only where `before` is
+    scale = np.divide(before, after, out=np.ones_like(before), where=after > 0)
+    out = (values[kept] * scale[indices[kept]]).astype(np.float32)
+    moved = float((before.sum() - after.sum()) / max(before.sum(), 1e-300))
+    counts = np.bincount(receiver[kept], minlength=n)
+    return np.r_[0, np.cumsum(counts)].astype(np.int64), indices[kept], out, moved
+
+
+def _source_cuts(x: np.ndarray, field: NearField, table: ProfileTable, threshold: float, diagonal: bool,
+                 keep: int, beyond_mm: float) -> np.ndarray:
+    """(n,) a strength (largest channel) below which an entry cannot be among its source's `keep`
+    strongest: half the weakest of the `keep` strongest of its entries to its nearest receivers
+    farther than `beyond_mm`. Those are `keep` entries at least that strong, so the `keep`-th
+    strongest of all is too, whichever they are (the half is a margin for rounding only; the
+    nearest are simply where strong entries are: ``A_i Rd(d)`` falls with distance). All 0 when
+    the mesh has too few vertices."""
+    n, tree = len(x), cKDTree(x)
+    inside = tree.query_ball_point(x, beyond_mm, return_length=True) if beyond_mm > 0 else np.ones(n, int)
+    wanted = keep + int(inside.max())  # the source itself is inside (distance 0)
+    if n < wanted:
+        return np.zeros(n)
+    d, near = tree.query(x, k=wanted)
+    d, near = d.reshape(n, wanted), near.reshape(n, wanted)
+    source = np.repeat(np.arange(n), wanted)
+    strength = throughput_values(field, table, threshold, source, near.reshape(-1), diagonal).max(axis=1)
+    strength = np.where((d > beyond_mm) & (near != np.arange(n)[:, None]), strength.reshape(n, wanted), 0.0)
+    return 0.5 * np.sort(strength, axis=1)[:, -keep]  # the weakest of the `keep` strongest found
 
 
 def _cell_classes(cell: np.ndarray) -> np.ndarray:

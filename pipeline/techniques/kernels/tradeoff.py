@@ -7,7 +7,9 @@ One mesh (the largest of the file, all its primitives in one atlas, as the bake 
 material, random test lights (seeded). A default configuration (`DEFAULT_RESOLUTION`,
 `KERNELS_DEFAULTS`), then one sweep per knob that changes that knob alone: atlas resolution,
 kernel size, F's threshold, blending (with and without the §5.4 optimisation, and none), seam
-unfolding. Every configuration is rendered with the GPU runtime (`render`'s kernels draw), so the
+unfolding. Under F's byte bound (`kernels_f_bytes`, on by default) each source keeps its strongest
+entries whatever the threshold, so the threshold sweep moves F only with ``f_bytes`` 0 in `options`.
+Every configuration is rendered with the GPU runtime (`render`'s kernels draw), so the
 RMSE holds everything the runtime does: shadow-map visibility, texel sampling, the bilinear read.
 """
 

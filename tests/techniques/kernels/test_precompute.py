@@ -9,7 +9,13 @@ from kernels_planes import flat_surface, plane_atlas, split_atlas
 from sssbake.pipeline.core.profile import diffuse_reflectance_profile, profile_for, profile_total
 from sssbake.pipeline.core.materials import preset
 from sssbake.pipeline.techniques.kernels.evaluate import local_response, texel_q, vertex_response
-from sssbake.pipeline.techniques.kernels.precompute import KernelsPrecomputeOptions, precompute_kernels
+from sssbake.pipeline.techniques.kernels.layout import kernels_bytes
+from sssbake.pipeline.techniques.kernels.precompute import (
+    KernelsPrecomputeOptions,
+    entries_per_source,
+    global_budget,
+    precompute_kernels,
+)
 
 SKIN = preset("skin1")
 P = profile_for(SKIN)
@@ -24,8 +30,9 @@ def surface():
 @pytest.fixture(scope="module")
 def bakes(surface):
     atlas = plane_atlas(surface, 180)  # ~0.17 mm texels, six per vertex spacing
+    # F unbounded, as the paper's: these compare the blending modes (`test_bounded_f_...`: the budget)
     return {blend: precompute_kernels(surface, atlas, [(surface.positions, surface.normals)], 1.0, SKIN,
-                                      KernelsPrecomputeOptions(blend=blend))
+                                      KernelsPrecomputeOptions(blend=blend, f_bytes=0))
             for blend in ("optimised", "fixed", "none")}
 
 
@@ -103,7 +110,8 @@ def test_kernels_see_across_a_chart_seam(surface):
     prims = [(surface.positions, surface.normals)]
     near_seam = {}
     for seams in ("unfold", "none"):
-        pre = precompute_kernels(surface, atlas, prims, 1.0, SKIN, KernelsPrecomputeOptions(seams=seams))
+        # F unbounded: a shadow edge is what the bound costs most (`test_bounded_f_...`)
+        pre = precompute_kernels(surface, atlas, prims, 1.0, SKIN, KernelsPrecomputeOptions(seams=seams, f_bytes=0))
         x = pre.positions[:, 0]
         lit = (pre.positions[:, 1] < 0).astype(float)  # an edge across the seam: kernels must see both sides
         border_x = pre.border_positions[:, 1] < 0 if len(pre.border_positions) else None
@@ -140,3 +148,52 @@ def test_a_simplified_global_mesh_keeps_the_plane_at_rd(surface):
     q = texel_q(d, _image(pre, 1.0), pre.barycentric)
     centre = np.linalg.norm(pre.positions[:, :2], axis=1) < 6.0
     np.testing.assert_allclose(q[centre].mean(axis=0), RD, rtol=0.03)
+
+
+def test_bounded_f_fits_its_bytes_and_keeps_what_each_texel_sends(surface, bakes):
+    atlas = plane_atlas(surface, 180)
+    pre = precompute_kernels(surface, atlas, [(surface.positions, surface.normals)], 1.0, SKIN,
+                             KernelsPrecomputeOptions())  # 64 B per vertex
+    d, full = pre.data, bakes["optimised"].data
+    assert kernels_bytes(d)["f"] <= 64 * len(surface.positions) < kernels_bytes(full)["f"] / 20
+    assert d.vertex_count == len(surface.positions) and np.diff(d.f_indptr).mean() <= 4
+    q = texel_q(d, _image(pre, 1.0), pre.barycentric)
+    centre = np.linalg.norm(pre.positions[:, :2], axis=1) < 6.0
+    np.testing.assert_allclose(q[centre].mean(axis=0), RD, rtol=0.02)
+    middle = int(np.argmin(np.linalg.norm(pre.positions[:, :2], axis=1)))
+    impulse = np.zeros(len(d.texels))
+    impulse[middle] = 1.0
+    q = texel_q(d, _image(pre, impulse), pre.barycentric)
+    sent = (q * pre.areas[:, None]).sum(axis=0) / (pre.areas[middle] * RD)
+    assert np.all((sent > 0.98) & (sent < 1.005)), sent
+    # what the bound costs at a shadow edge: light travels less far (0.156 measured; unbounded under
+    # 0.05, `test_illumination_edge_is_sharper_with_the_blending_optimisation`)
+    x = pre.positions[:, 0]
+    q = texel_q(d, _image(pre, (x < 0).astype(float)), pre.barycentric)
+    near = (np.abs(x) < 4.0) & (np.abs(pre.positions[:, 1]) < 6.0)
+    exact = _half_plane(-x[near])
+    assert np.sqrt(np.mean((q[near] - exact) ** 2) / np.mean(exact**2)) < 0.2
+
+
+def test_the_budget_sets_the_global_mesh_and_the_entries_per_source():
+    options = KernelsPrecomputeOptions()  # 64 B per vertex, at most 20,000 global vertices
+    assert global_budget(50_000, options) == 20_000
+    # 64 · 50,000 bytes less 4 per fIndptr row, at 14 bytes an entry (uint16 sources)
+    assert entries_per_source(50_000, 20_000, 64.0) == (64 * 50_000 - 4 * 20_001) // (14 * 20_000) == 11
+    assert entries_per_source(50_000, 20_000, 0.0) == 0  # unbounded
+    # 16 bytes a vertex hold no entry on the surface's own vertices: the budget coarsens the mesh
+    small = KernelsPrecomputeOptions(f_bytes=16, global_vertices=0)
+    assert global_budget(10_000, small) == int(16 * 10_000 / (4 * 14 + 4)) == 2666
+    assert entries_per_source(10_000, 2666, 16.0) >= 1
+    with pytest.raises(ValueError, match="--kernels-f-bytes"):
+        entries_per_source(100, 100, 16.0)
+
+
+def test_kernel_weights_past_the_texture_limit_are_refused_before_the_precompute(surface, monkeypatch):
+    import sssbake.pipeline.techniques.kernels.precompute as precompute
+
+    atlas = plane_atlas(surface, 64)
+    monkeypatch.setattr(precompute, "GL_TEXTURE_LIMIT", 40)  # 1600 texels: fewer than the 49 weights of 33 texels
+    monkeypatch.setattr(precompute, "throughput_matrix", None)  # refused before F is built
+    with pytest.raises(ValueError, match="--atlas-resolution .*--kernels-size"):
+        precompute_kernels(surface, atlas, [(surface.positions, surface.normals)], 1.0, SKIN)

@@ -14,6 +14,7 @@ from sssbake.pipeline.mesh.texels import rasterize_atlas
 from sssbake.pipeline.render.renderer import Renderer, RenderLight, fit_camera
 from sssbake.pipeline.techniques.kernels.data import KernelsData
 from sssbake.pipeline.techniques.kernels.evaluate import local_response, vertex_response
+from sssbake.pipeline.techniques.kernels.runtime import wrap_width
 
 DIALECTS = ["glsl330", "essl300"]
 # rotation about (1, 2, 3), non-uniform scale and a shift
@@ -289,16 +290,32 @@ def test_bad_kernels_items_get_a_clear_error(renderers):
         r.render([partial], camera, light)
 
 
-def test_tables_beyond_the_texture_limit_are_refused():
+def test_tables_taller_than_the_texture_limit_are_widened():
+    # 400 · 49 kernel weights asked for one column: the table widens until its rows fit the
+    # limit, and the passes still equal numpy
     rng = np.random.default_rng(6)
-    r = Renderer((8, 8), table_width=1, shadow_size=16)  # 400 · 49 kernel weights in one column
+    r = Renderer((8, 8), table_width=1, shadow_size=16)
     try:
-        item = random_item(rng, random_kernels(rng, texels=400))
-        with pytest.raises(ValueError, match="kernels runtime: kernels .* GL_MAX_TEXTURE_SIZE"):
-            r.passes(item, RenderLight())
         limit = r.ctx.info["GL_MAX_TEXTURE_SIZE"]
+        data = random_kernels(rng, texels=400)
+        e = rng.uniform(0.0, 2.0, (data.height, data.width))
+        out = r.passes(random_item(rng, data), RenderLight(), given=e)
+        np.testing.assert_allclose(out["local"], local_response(data, e), rtol=1e-4,
+                                   atol=1e-6 * np.abs(local_response(data, e)).max())
+        assert wrap_width(400 * 49, 1, limit) == -(-400 * 49 // limit) >= 2
         wide = random_kernels(rng, width=limit + 1, height=1, texels=10, borders=0)
         with pytest.raises(ValueError, match="atlas is over GL_MAX_TEXTURE_SIZE"):
             r.passes(random_item(rng, wide), RenderLight())
     finally:
         r.release()
+
+
+def test_wrap_width_keeps_every_side_within_the_limit():
+    for count, width, limit in [(10, 4, 16), (100, 4, 16), (256, 4, 16), (257, 4, 16), (3, 4, 16), (0, 4, 16)]:
+        w = wrap_width(count, width, limit)
+        assert 1 <= w <= limit
+        if count <= limit * limit:
+            assert -(-count // w) <= limit  # rows fit
+            assert w == max(min(width, max(count, 1)), -(-count // limit))  # no wider than needed
+    assert wrap_width(100, 4, 16) == 7 and wrap_width(10, 4, 16) == 4
+    assert wrap_width(300, 4, 16) == 16  # over limit²: the caller refuses it

@@ -80,3 +80,55 @@ def test_dropping_candidates_by_cell_before_the_values_changes_no_entry(monkeypa
     np.testing.assert_array_equal(fast.indices, slow.indices)
     np.testing.assert_array_equal(fast.values, slow.values)
     np.testing.assert_allclose(fast.sent, slow.sent, rtol=1e-12)
+
+
+def test_strongest_per_source_keeps_what_each_source_sends(plane_f):
+    s, f = plane_f
+    n, cell = len(s.positions), s.vertex_areas
+    indptr, indices, values, moved = throughput.strongest_per_source(f.indptr, f.indices, f.values, cell, 5)
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    old_rows = np.repeat(np.arange(n), np.diff(f.indptr))
+    assert np.all(np.bincount(indices, minlength=n) <= 5)
+    for j in range(0, n, 53):  # still CSR by receiver, sources increasing
+        assert np.all(np.diff(indices[indptr[j]: indptr[j + 1]]) > 0)
+    sent_before = np.stack([np.bincount(f.indices, f.values[:, c] * cell[old_rows], minlength=n) for c in range(3)])
+    sent_after = np.stack([np.bincount(indices, values[:, c] * cell[rows], minlength=n) for c in range(3)])
+    np.testing.assert_allclose(sent_after, sent_before, rtol=1e-5)
+    assert 0.3 < moved < 1.0  # most of skin1's light lands beyond a source's five nearest vertices
+    # the kept entries of a source are its strongest, scaled by one factor per channel
+    i = n // 2
+    column = f.indices == i
+    old, old_receivers = f.values[column], old_rows[column]
+    kept = np.isin(old_receivers, rows[indices == i])
+    assert kept.sum() == 5 and old[kept].max(axis=1).min() >= old[~kept].max(axis=1).max()
+    ratio = values[indices == i] / old[kept]
+    np.testing.assert_allclose(ratio, ratio[:1].repeat(len(ratio), axis=0), rtol=1e-5)
+
+
+def test_a_bounded_build_equals_bounding_the_full_matrix(plane_f):
+    # the build holds only each source's candidates, yet gives what bounding all of F gives
+    s, f = plane_f
+    bounded = throughput_matrix(s.positions, s.faces, s.normals, P, 1e-5, per_source=5)
+    indptr, indices, values, moved = throughput.strongest_per_source(f.indptr, f.indices, f.values,
+                                                                     s.vertex_areas, 5)
+    np.testing.assert_array_equal(bounded.indptr, indptr)
+    np.testing.assert_array_equal(bounded.indices, indices)
+    np.testing.assert_allclose(bounded.values, values, rtol=1e-5)
+    assert np.isclose(bounded.moved, moved, rtol=1e-6) and bounded.nnz <= 5 * len(s.positions)
+
+
+def test_a_bounded_build_keeps_only_entries_beyond_the_window(plane_f):
+    # receivers within 1.5 mm (the 1-ring and its diagonals on the 1 mm plane) are the kernels':
+    # neither kept nor renormalised onto the others
+    s, f = plane_f
+    bounded = throughput_matrix(s.positions, s.faces, s.normals, P, 1e-5, per_source=5, beyond_mm=1.5)
+    rows = np.repeat(np.arange(len(s.positions)), np.diff(f.indptr))
+    far = np.linalg.norm(s.positions[rows] - s.positions[f.indices], axis=1) > 1.5
+    counts = np.bincount(rows[far], minlength=len(s.positions))
+    indptr, indices, values, _ = throughput.strongest_per_source(np.r_[0, np.cumsum(counts)], f.indices[far],
+                                                                 f.values[far], s.vertex_areas, 5)
+    np.testing.assert_array_equal(bounded.indptr, indptr)
+    np.testing.assert_array_equal(bounded.indices, indices)
+    np.testing.assert_allclose(bounded.values, values, rtol=1e-5)
+    kept_rows = np.repeat(np.arange(len(s.positions)), np.diff(bounded.indptr))
+    assert np.linalg.norm(s.positions[kept_rows] - s.positions[bounded.indices], axis=1).min() > 1.5

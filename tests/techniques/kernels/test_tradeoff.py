@@ -3,6 +3,7 @@ RMSE the way they must, and the results are written as JSON/CSV/plot."""
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,7 @@ from fixtures import assert_tradeoff_written
 
 from sssbake.pipeline.cli import main
 from sssbake.pipeline.core.materials import preset
+from sssbake.pipeline.techniques.kernels.precompute import KERNELS_DEFAULTS
 from sssbake.pipeline.techniques.kernels.tradeoff import KNOBS, kernels_tradeoff
 
 # A unit sphere at 10 mm per unit: 20 mm across, 5 to 30 diffusion lengths of skin1 (RGB).
@@ -27,8 +29,9 @@ def sphere(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def result(sphere):
+    # F unbounded: under the default byte bound the threshold no longer sets F's size
     return kernels_tradeoff(sphere, MM, preset("skin1"), sphere.parent / "out", lights=1, size=64, resolution=64,
-                            **SWEEPS)
+                            options=replace(KERNELS_DEFAULTS, f_bytes=0), **SWEEPS)
 
 
 def sweep(result, name):

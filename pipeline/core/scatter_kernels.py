@@ -1,0 +1,464 @@
+"""Compiled loops of the scatter gather's entries: each row's exact pairs (`near_field.NearField`)
+and vertex-cluster terms (`scatter_operator._KernelTable`) computed and written straight into CSR.
+
+The numpy formulation built per-pair temporaries (offsets, masks, per-case index arrays, sub-
+triangle expansions) and then stacked them: ~330 ns per stored entry on the 50k dragon, 69 % of
+prt's precompute. Here every entry is computed once in registers and written in place, in two
+passes over blocks of rows: one counts each row's entries per channel (distances only) so that
+the CSR arrays are allocated once at their final size, the other fills them. Both release the
+GIL, so the callers' threads run blocks side by side.
+
+The arithmetic follows the numpy definitions term by term (`profile.diffuse_reflectance_profile`,
+`disc_average.DiscMean`, and the disc mean's numpy form in tests/disc_reference.py), with two
+departures below float32 rounding (tests compare against the numpy forms):
+
+- Rd and the disc expansion read a table in ln r (`radial_table`, ~1e-7 relative) instead of
+  summing 18 poles × 3 channels of exponentials per evaluation (the sub-triangles of close
+  pairs take millions of them);
+- the triangle rules take their angles by atan2, not acos, which lost half the digits near 0
+  and π (entries moved by ~1e-8 when the mesh was rotated).
+
+Arrays are passed as a few typed arguments (numba cannot take the dataclasses): a *profile*
+is its (P, 3) weight, depth and sigma; a *disc* is ``(log_a0, log_table, gauss_x, gauss_w,
+polar_rho, polar_cos, polar_weight, z_min, sigma_tr, radial)`` (`radial_table`); a *field* the
+arrays of `NearField` (`NearField.kernel_args` builds them all).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from sssbake.pipeline.core.disc_average import (
+    EDGE_BAND,
+    EDGE_SHARP,
+    LOG_A_STEP,
+    OFF_PLANE,
+    POINT_REACH,
+    POINT_SIGMA,
+    POLAR_HEIGHT,
+    SMALL_TILTED,
+    T_STEP,
+    TABLE_REACH,
+)
+
+_FOUR_PI = 4.0 * math.pi
+#: Step in ln r of `radial_table`, and its reach in decay lengths 1/σ_tr: there the far tail
+#: e^(-σ_tr r) makes the 4-point rule's error ~(step σ_tr r)⁴/24 ~1e-7 relative.
+RADIAL_STEP = 2e-3
+RADIAL_DECAYS = 20.0
+
+_jit = numba.njit(cache=True, nogil=True)
+_inline = numba.njit(cache=True, nogil=True, inline="always")
+
+
+@_jit
+def _expansion(r, a, h, weight, depth, sigma, out):
+    """Rd + ½ tr(H Σ) of a disc of radius a seen from h off its plane, clipped at 0, into out (3,)
+    (`disc_reference.disc_expansion` in tests)."""
+    r2 = r * r
+    c2 = h * h / r2 if r > 0.0 else 0.0
+    spread = 0.125 * a * a
+    for c in range(3):
+        total = 0.0
+        for p in range(weight.shape[0]):
+            w = weight[p, c]
+            if w == 0.0:
+                continue
+            z = depth[p, c]
+            d2 = r2 + z * z
+            d = math.sqrt(d2)
+            big_p = sigma[p, c] * d
+            q2 = big_p * (big_p + 3.0) + 3.0
+            q3 = big_p * (big_p * (big_p + 5.0) + 12.0) + 12.0
+            bracket = ((1.0 - c2) * (q3 * r2 - q2 * (z * z)) / d2 - (1.0 + c2) * q2) * (spread / d2) + (1.0 + big_p)
+            total += w * z * math.exp(-big_p) / (d2 * d) * bracket
+        out[c] = max(total / _FOUR_PI, 0.0)
+
+
+def radial_table(weight: np.ndarray, depth: np.ndarray, sigma: np.ndarray, r_lo: float, r_hi: float) -> tuple:
+    """Rd and the disc expansion's two spread terms per channel on a grid of ln r, for `_radial`.
+
+    `_expansion` is A(r) + (a²/8)(U(r) - c² V(r)) with A = Rd and U, V sums over the poles of
+    e^(-P)/D⁵ polynomials: three functions of r alone. Tabulated at `RADIAL_STEP` in ln r and
+    read by 4-point Lagrange interpolation (error ~ step⁴ f⁗/24 in ln r; tests compare against
+    `_expansion`): one logarithm and a few dozen products instead of a square root and an
+    exponential per pole and channel.
+
+    Returns
+    -------
+    (u0, 1/step, values (3, 3, N)): ln r of the first node, its inverse step, and per channel
+    (A, U, V) / 4π at the nodes; r outside [r_lo, r_hi] is left to `_expansion`.
+    """
+    u = np.arange(np.log(r_lo) - 2 * RADIAL_STEP, np.log(r_hi) + 3 * RADIAL_STEP, RADIAL_STEP)
+    r2 = np.exp(2.0 * u)
+    values = np.zeros((3, 3, len(u)))
+    for c in range(3):
+        for w, z, s in zip(weight[:, c], depth[:, c], sigma[:, c]):
+            if w == 0.0:
+                continue
+            d2 = r2 + z * z
+            d = np.sqrt(d2)
+            big_p = s * d
+            q2 = big_p * (big_p + 3.0) + 3.0
+            q3 = big_p * (big_p * (big_p + 5.0) + 12.0) + 12.0
+            base = w * z * np.exp(-big_p) / (d2 * d)
+            f, g = base * (q3 * r2 - q2 * (z * z)) / (d2 * d2), base * q2 / d2
+            values[c, 0] += base * (1.0 + big_p)
+            values[c, 1] += f - g
+            values[c, 2] += f + g
+    return float(u[0]), 1.0 / RADIAL_STEP, values / _FOUR_PI
+
+
+@_inline
+def _radial(r, a, h, radial, weight, depth, sigma, out):
+    """`_expansion` (a = 0: Rd) from `radial_table`, or exactly outside its range."""
+    u0, inv_step, values = radial
+    u = (math.log(r) - u0) * inv_step if r > 0.0 else -1.0
+    i = int(u)
+    if u < 1.0 or i + 2 >= values.shape[2]:
+        _expansion(r, a, h, weight, depth, sigma, out)
+        return
+    f = u - i
+    # Lagrange weights of the nodes i - 1 .. i + 2 at i + f.
+    w0 = -f * (f - 1.0) * (f - 2.0) / 6.0
+    w1 = (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0
+    w2 = -(f + 1.0) * f * (f - 2.0) / 2.0
+    w3 = (f + 1.0) * f * (f - 1.0) / 6.0
+    spread = 0.125 * a * a
+    c2 = h * h / (r * r)
+    for c in range(3):
+        t = w0 * values[c, 0, i - 1] + w1 * values[c, 0, i] + w2 * values[c, 0, i + 1] + w3 * values[c, 0, i + 2]
+        if spread > 0.0:
+            uu = w0 * values[c, 1, i - 1] + w1 * values[c, 1, i] + w2 * values[c, 1, i + 1] + w3 * values[c, 1, i + 2]
+            vv = w0 * values[c, 2, i - 1] + w1 * values[c, 2, i] + w2 * values[c, 2, i + 1] + w3 * values[c, 2, i + 2]
+            t += spread * (uu - c2 * vv)
+        out[c] = max(t, 0.0)
+
+
+@_jit
+def _cumulative_pole(r, h, w, z, s):
+    """One pole's share of G(r) above height h (`disc_reference._cumulative` in tests), before the ½."""
+    r2 = r * r
+    lifted = math.sqrt(h * h + z * z)
+    excess = r2 / (math.sqrt(r2 + lifted * lifted) + lifted)
+    return w * z * math.exp(-s * lifted) / lifted * -math.expm1(-math.log1p(excess / lifted) - s * excess)
+
+
+@_jit
+def _tail_pole(r, h, w, z, s):
+    """One pole's share of H(r) above height h (`disc_reference._tail` in tests), before the ½."""
+    dist = math.sqrt(r * r + h * h + z * z)
+    return w * z * math.exp(-s * dist) / dist
+
+
+@_jit
+def disc_mean_exact_one(d, a, h, weight, depth, sigma, gauss_x, gauss_w, out):
+    """Exact mean of Rd over a disc (`disc_reference.disc_mean_exact` in tests) for one (d, a, h), into out (3,)."""
+    t = d / a
+    for c in range(3):
+        out[c] = 0.0
+    if t < 1.0:
+        for k in range(len(gauss_x)):
+            phi = 0.5 * math.pi * (gauss_x[k] + 1.0)
+            rho = a * (t * math.cos(phi) + math.sqrt(max(1.0 - (t * math.sin(phi)) ** 2, 0.0)))
+            for c in range(3):
+                g = 0.0
+                for p in range(weight.shape[0]):
+                    if weight[p, c] != 0.0:
+                        g += _cumulative_pole(rho, h, weight[p, c], depth[p, c], sigma[p, c])
+                out[c] += gauss_w[k] * 0.5 * g
+        for c in range(3):
+            out[c] *= 0.5 / (math.pi * a * a)
+        return
+    for k in range(len(gauss_x)):
+        psi = 0.25 * math.pi * (gauss_x[k] + 1.0)
+        cos_phi = math.sqrt(max(1.0 - (math.sin(psi) / t) ** 2, 0.0))
+        near = a * (t * cos_phi - math.cos(psi))
+        far = a * (t * cos_phi + math.cos(psi))
+        jac = math.cos(psi) / max(t * cos_phi, 1e-300)
+        for c in range(3):
+            band = 0.0
+            for p in range(weight.shape[0]):
+                if weight[p, c] == 0.0:
+                    continue
+                band += (_tail_pole(near, h, weight[p, c], depth[p, c], sigma[p, c])
+                         - _tail_pole(far, h, weight[p, c], depth[p, c], sigma[p, c]))
+            out[c] += gauss_w[k] * jac * 0.5 * band
+    for c in range(3):
+        out[c] *= (0.25 * math.pi) / (math.pi * math.pi * a * a)
+
+
+@numba.njit(cache=True, nogil=True)
+def disc_mean_rows(a, t, weight, depth, sigma, gauss_x, gauss_w, out, i0, i1):
+    """Rows i0..i1-1 of ln of the exact disc mean on the grid a (A,) × d/a (T,) into out (3, A, T)
+    (`disc_average.DiscMean.build`: ~2 CPU-s at the 50k dragon's ~300 radii). Rows go to the
+    caller's threads, not numba's parallel backend: that takes a multiprocessing lock in a
+    fork-server child, which leaks a semaphore (and a warning on the batch's stderr) when the
+    batch kills the child."""
+    value = np.empty(3)
+    for i in range(i0, i1):
+        for j in range(len(t)):
+            disc_mean_exact_one(a[i] * t[j], a[i], 0.0, weight, depth, sigma, gauss_x, gauss_w, value)
+            for c in range(3):
+                out[c, i, j] = math.log(max(value[c], 1e-300))
+
+
+@_inline
+def _disc(d, a, h, weight, depth, sigma, disc, out, scratch):
+    """ḡ of a disc of radius a at distance d, the receiver h off its plane, into out (3,)
+    (`disc_reference.disc_mean` in tests); scratch (3,) is overwritten."""
+    log_a0, table, gauss_x, gauss_w, polar_rho, polar_cos, polar_weight, z_min, sigma_tr, radial = disc
+    h = min(h, d)
+    t = d / max(a, 1e-300)
+    u = (math.log(max(a, 1e-300)) - log_a0) / LOG_A_STEP
+    close = t <= TABLE_REACH and u >= 0.0
+    tabled = close and h <= OFF_PLANE * d
+    edge = tabled and abs(t - 1.0) < EDGE_BAND and a > EDGE_SHARP * z_min
+    tabled = tabled and not edge
+    tilted = close and not tabled and a > SMALL_TILTED * math.sqrt(d * d + z_min * z_min)
+    if tilted:  # written last in the numpy form: it wins over `edge`
+        along = math.sqrt(max(d * d - h * h, 0.0))
+        if h < POLAR_HEIGHT * a:
+            disc_mean_exact_one(along, a, h, weight, depth, sigma, gauss_x, gauss_w, out)
+        else:
+            for c in range(3):
+                out[c] = 0.0
+            for k in range(len(polar_rho)):
+                ar = a * polar_rho[k]
+                r2 = h * h + along * along + ar * ar - 2.0 * along * ar * polar_cos[k]
+                _radial(math.sqrt(r2), 0.0, 0.0, radial, weight, depth, sigma, scratch)
+                for c in range(3):
+                    out[c] += polar_weight[k] * scratch[c]
+    elif edge:
+        disc_mean_exact_one(d, a, 0.0, weight, depth, sigma, gauss_x, gauss_w, out)
+    elif tabled:
+        ui = min(max(u, 0.0), table.shape[1] - 1.000001)
+        ti = min(max(t / T_STEP, 0.0), table.shape[2] - 1.000001)
+        i, j = int(ui), int(ti)
+        fu, ft = ui - i, ti - j
+        for c in range(3):
+            v = ((1 - fu) * ((1 - ft) * table[c, i, j] + ft * table[c, i, j + 1])
+                 + fu * ((1 - ft) * table[c, i + 1, j] + ft * table[c, i + 1, j + 1]))
+            out[c] = math.exp(v)
+    elif d > POINT_REACH * a and a * sigma_tr < POINT_SIGMA:
+        _radial(d, 0.0, 0.0, radial, weight, depth, sigma, out)
+    else:
+        _radial(d, a, h, radial, weight, depth, sigma, out)
+
+
+@_inline
+def _apex_triangle(ax, ay, az, px, py, pz, qx, qy, qz, log_r0, log_g, slope, g_table, steps, gauss_x, gauss_w, sign,
+                   out):
+    """Adds sign · ∫ Rd(|x - apex|) dx over the triangle (apex, p, q) to out (3,) (`cell_integral.apex_triangle`)."""
+    e1x, e1y, e1z = px - ax, py - ay, pz - az
+    e2x, e2y, e2z = qx - ax, qy - ay, qz - az
+    cx, cy, cz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    double_area = math.sqrt(cx * cx + cy * cy + cz * cz)
+    if not double_area > 1e-300:
+        return
+    fx, fy, fz = qx - px, qy - py, qz - pz
+    length = math.sqrt(fx * fx + fy * fy + fz * fz)
+    # The angles as atan2 of their sine and cosine: acos, as in the numpy form, loses half the
+    # digits near 0 and π (right angles at p are common), where rotating the mesh then moved
+    # entries by ~1e-8.
+    angle = math.atan2(double_area, e1x * e2x + e1y * e2y + e1z * e2z)
+    foot = double_area / length
+    along = -(e1x * fx + e1y * fy + e1z * fz) / length  # from p towards the foot
+    to_foot = math.atan2(abs(along), foot)
+    if along < 0.0:
+        to_foot = -to_foot
+    last = log_g.shape[1] - 1
+    scale = sign * (0.5 * angle / (2.0 * math.pi))
+    for k in range(len(gauss_x)):
+        phi = 0.5 * angle * (gauss_x[k] + 1.0)
+        rho = foot / max(math.cos(phi - to_foot), 1e-12)
+        u = (math.log(max(rho, 1e-300)) - log_r0) * steps
+        at = min(max(u, 0.0), last)
+        i = int(at)
+        f = at - i
+        if u < 0.0:  # below the table G ∝ r²
+            below = u * (2.0 / steps)
+            for c in range(3):
+                out[c] += scale * gauss_w[k] * math.exp(log_g[c, i] + below)
+            continue
+        for c in range(3):
+            # exp(log_g + f·slope) as G_i e^(f·slope): the step in ln G is at most 2/steps
+            # (G ∝ r² at most), so Taylor to the 6th order is exact to double rounding (x⁷/7! < 1e-18).
+            x = f * slope[c, i]
+            e = 1.0 + x * (1.0 + x * (0.5 + x * (1.0 / 6.0 + x * (1.0 / 24.0 + x * (1.0 / 120.0 + x * (1.0 / 720.0))))))
+            out[c] += scale * gauss_w[k] * (g_table[c, i] * e)
+
+
+@_jit
+def apex_triangles(apex, p, q, log_r0, log_g, slope, g_table, steps, gauss_x, gauss_w):
+    """∫ Rd(|x - apex|) dx over triangles (apex[k], p[k], q[k]), (m, 3) each -> (m, 3)."""
+    out = np.zeros((len(apex), 3))
+    for k in range(len(apex)):
+        _apex_triangle(apex[k, 0], apex[k, 1], apex[k, 2], p[k, 0], p[k, 1], p[k, 2], q[k, 0], q[k, 1], q[k, 2],
+                       log_r0, log_g, slope, g_table, steps, gauss_x, gauss_w, 1.0, out[k])
+    return out
+
+
+@_jit
+def triangles_in_plane(point, a, b, c, log_r0, log_g, slope, g_table, steps, gauss_x, gauss_w):
+    """∫ Rd(|x - point[k]|) dx over triangles (a[k], b[k], c[k]) in the point's plane, (m, 3) each -> (m, 3)."""
+    out = np.zeros((len(point), 3))
+    tri = np.empty((3, 3))
+    for k in range(len(point)):
+        tri[0], tri[1], tri[2] = a[k], b[k], c[k]
+        _triangle_in_plane(point[k], tri, log_r0, log_g, slope, g_table, steps, gauss_x, gauss_w, out[k])
+    return out
+
+
+@_inline
+def _triangle_in_plane(point, tri, log_r0, log_g, slope, g_table, steps, gauss_x, gauss_w, out):
+    """Adds ∫ Rd(|p - point|) dp over the triangle tri (3, 3) to out (3,): the signed sum of the
+    triangles (point, edge) (`cell_integral.triangle_integral_in_plane`)."""
+    ux, uy, uz = tri[1, 0] - tri[0, 0], tri[1, 1] - tri[0, 1], tri[1, 2] - tri[0, 2]
+    vx, vy, vz = tri[2, 0] - tri[0, 0], tri[2, 1] - tri[0, 1], tri[2, 2] - tri[0, 2]
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    for e in range(3):
+        p, q = tri[e], tri[(e + 1) % 3]
+        ax, ay, az = p[0] - point[0], p[1] - point[1], p[2] - point[2]
+        bx, by, bz = q[0] - point[0], q[1] - point[1], q[2] - point[2]
+        turn = (ay * bz - az * by) * nx + (az * bx - ax * bz) * ny + (ax * by - ay * bx) * nz
+        if turn != 0.0:
+            _apex_triangle(point[0], point[1], point[2], p[0], p[1], p[2], q[0], q[1], q[2],
+                           log_r0, log_g, slope, g_table, steps, gauss_x, gauss_w, 1.0 if turn > 0.0 else -1.0, out)
+
+
+@_jit
+def pair_weight(o, i, field, weight, depth, sigma, disc, cumulative, out, scratch):
+    """∫_{cell_i} Rd(|p - x_o|) dp into out (3,) (`near_field.NearField.weights`).
+
+    field = (positions, area, radius, normals, own, sub_ptr, sub_corners, sub_normal, sub_area,
+    sub_face, zone); cumulative = (log_r0, log_g, slope, g_table, steps, gauss_x, gauss_w) of
+    `cell_integral.Cumulative` (`Cumulative.kernel_args`) with the `cell_integral.NODES_BESIDE`
+    rule; scratch (6,) is overwritten."""
+    x, area, radius, normals, own, sub_ptr, sub_corners, sub_normal, sub_area, sub_face, zone = field
+    log_r0, log_g, slope, g_table, steps, beside_x, beside_w = cumulative
+    sigma_tr, radial = disc[8], disc[9]
+    dx, dy, dz = x[o, 0] - x[i, 0], x[o, 1] - x[i, 1], x[o, 2] - x[i, 2]
+    d = math.sqrt(dx * dx + dy * dy + dz * dz)
+    a = radius[i]
+    if o != i and d > POINT_REACH * a and a * sigma_tr < POINT_SIGMA:
+        # Most pairs far from small sources: the point value (`DiscMean.is_point`).
+        _radial(d, 0.0, 0.0, radial, weight, depth, sigma, out)
+        for c in range(3):
+            out[c] *= area[i]
+    elif o == i:
+        for c in range(3):
+            out[c] = own[o, c]
+    elif d < zone * (radius[o] + a):
+        # Close: the source's sub-triangles, exactly where they share a triangle with the receiver.
+        for c in range(3):
+            out[c] = 0.0
+        one, inner = scratch[:3], scratch[3:]
+        for s in range(sub_ptr[i], sub_ptr[i + 1]):
+            if sub_face[s, 0] == o or sub_face[s, 1] == o or sub_face[s, 2] == o:
+                _triangle_in_plane(x[o], sub_corners[s], log_r0, log_g, slope, g_table, steps, beside_x, beside_w, out)
+            else:
+                cen = (sub_corners[s, 0] + sub_corners[s, 1] + sub_corners[s, 2]) / 3.0
+                sx, sy, sz = x[o, 0] - cen[0], x[o, 1] - cen[1], x[o, 2] - cen[2]
+                dist = math.sqrt(sx * sx + sy * sy + sz * sz)
+                h = abs(sx * sub_normal[s, 0] + sy * sub_normal[s, 1] + sz * sub_normal[s, 2])
+                _disc(dist, math.sqrt(sub_area[s] / math.pi), h, weight, depth, sigma, disc, one, inner)
+                for c in range(3):
+                    out[c] += one[c] * sub_area[s]
+    else:
+        h = abs(dx * normals[i, 0] + dy * normals[i, 1] + dz * normals[i, 2])
+        _disc(d, a, h, weight, depth, sigma, disc, out, scratch)
+        for c in range(3):
+            out[c] *= area[i]
+
+
+@_jit
+def pair_weights(o, i, field, weight, depth, sigma, disc, cumulative):
+    """`pair_weight` of pairs (o[k], i[k]): (m, 3)."""
+    out = np.empty((len(o), 3))
+    scratch = np.empty(6)
+    for k in range(len(o)):
+        pair_weight(o[k], i[k], field, weight, depth, sigma, disc, cumulative, out[k], scratch)
+    return out
+
+
+@_jit
+def pair_counts(j0, j1, rows, keys, ptr, lists, range_ptr, targets, sources, radius, counts):
+    """Entries of rows j0..j1 - 1 per channel into counts (3, T): sources within the channel's
+    radius of target rows[j].
+
+    Row j's sources are sources[range_ptr[g]] .. sources[range_ptr[g + 1] - 1] (3,) each, for
+    each g in lists[ptr[keys[j]]:ptr[keys[j] + 1]] (vertices of cells, or clusters one by one)."""
+    for j in range(j0, j1):
+        o = rows[j]
+        n0 = n1 = n2 = 0
+        for g in lists[ptr[keys[j]]:ptr[keys[j] + 1]]:
+            for i in range(range_ptr[g], range_ptr[g + 1]):
+                dx, dy, dz = targets[o, 0] - sources[i, 0], targets[o, 1] - sources[i, 1], targets[o, 2] - sources[i, 2]
+                d = math.sqrt(dx * dx + dy * dy + dz * dz)
+                n0 += d <= radius[0]
+                n1 += d <= radius[1]
+                n2 += d <= radius[2]
+        counts[0, j], counts[1, j], counts[2, j] = n0, n1, n2
+
+
+@_jit
+def near_fill(j0, j1, rows, keys, ptr, lists, range_ptr, radius, field, weight, depth, sigma, disc, cumulative,
+              indptr, indices, data):
+    """Writes the entries of rows j0..j1 - 1 (`pair_counts`, the vertices of cells) into CSR arrays
+    of 3T rows: channel c's row j at indptr[c·T + j], the sources in list order."""
+    x = field[0]
+    t = len(rows)
+    r_max = max(radius[0], radius[1], radius[2])
+    value, scratch = np.empty(3), np.empty(6)
+    for j in range(j0, j1):
+        o = rows[j]
+        at0, at1, at2 = indptr[j], indptr[t + j], indptr[2 * t + j]
+        for g in lists[ptr[keys[j]]:ptr[keys[j] + 1]]:
+            for i in range(range_ptr[g], range_ptr[g + 1]):
+                dx, dy, dz = x[o, 0] - x[i, 0], x[o, 1] - x[i, 1], x[o, 2] - x[i, 2]
+                d = math.sqrt(dx * dx + dy * dy + dz * dz)
+                if d > r_max:
+                    continue
+                pair_weight(o, i, field, weight, depth, sigma, disc, cumulative, value, scratch)
+                if d <= radius[0]:
+                    indices[at0], data[at0] = i, value[0]
+                    at0 += 1
+                if d <= radius[1]:
+                    indices[at1], data[at1] = i, value[1]
+                    at1 += 1
+                if d <= radius[2]:
+                    indices[at2], data[at2] = i, value[2]
+                    at2 += 1
+
+
+@_jit
+def far_fill(j0, j1, rows, keys, ptr, lists, xt, centroid, spread, trace, radius, log_lo, step, value, slope, m,
+             indptr, indices, data):
+    """Writes the cluster kernels Rd_c(D) + ½ tr(H Σ) of rows j0..j1 - 1 (`pair_counts`, clusters one by one) into CSR
+    arrays of 3T rows, channel c's columns c·m + cluster (`_KernelTable` value, slope (3, 3, N))."""
+    t = len(rows)
+    nodes = value.shape[2]
+    at = np.empty(3, dtype=np.int64)
+    for j in range(j0, j1):
+        o = rows[j]
+        at[0], at[1], at[2] = indptr[j], indptr[t + j], indptr[2 * t + j]
+        for s in lists[ptr[keys[j]]:ptr[keys[j] + 1]]:
+            dx, dy, dz = xt[0, o] - centroid[0, s], xt[1, o] - centroid[1, s], xt[2, o] - centroid[2, s]
+            d2 = dx * dx + dy * dy + dz * dz
+            d = math.sqrt(d2)  # >= separation · h_l > 0
+            radial = (spread[0, s] * dx * dx + spread[1, s] * dy * dy + spread[2, s] * dz * dz
+                      + 2.0 * (spread[3, s] * dx * dy + spread[4, s] * dx * dz + spread[5, s] * dy * dz)) / d2
+            u = (math.log(d) - log_lo) / step
+            node = min(max(int(u), 0), nodes - 2)
+            w = u - node
+            for c in range(3):
+                if d <= radius[c]:
+                    kernel = value[c, 0, node] + w * slope[c, 0, node]
+                    kernel += (value[c, 1, node] + w * slope[c, 1, node]) * radial
+                    kernel += (value[c, 2, node] + w * slope[c, 2, node]) * trace[s]
+                    indices[at[c]], data[at[c]] = c * m + s, kernel
+                    at[c] += 1
