@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sssbake.pipeline.core.surface import triangle_areas
 from sssbake.pipeline.mesh.texels import rasterize_atlas
 
 #: Fraction of covered texels that may be covered twice.
@@ -93,8 +94,8 @@ def check_uvs(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]], width: int
     hi = max(float(u.max()) for u in uvs if u.size)
     if lo < 0.0 or hi > 1.0:
         return UvCheck(False, f"UVs outside [0, 1] (range {lo:.3g} .. {hi:.3g}: tiled or offset)", nan, nan, nan)
-    uv_area = np.concatenate([_areas(u[f]) for u, (_, f, _) in zip(uvs, parts)])
-    xyz_area = np.concatenate([_areas(np.asarray(p, dtype=np.float64)[f]) for _, f, p in parts])
+    uv_area = np.concatenate([_uv_areas(u[f]) for u, (_, f, _) in zip(uvs, parts)])
+    xyz_area = np.concatenate([triangle_areas(np.asarray(p, dtype=np.float64), f) for _, f, p in parts])
     coverage = float(uv_area.sum())
     # linear texel density (texels per unit length) of every triangle, weighted by surface area
     tiny = np.finfo(float).tiny
@@ -123,12 +124,10 @@ def check_uvs(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]], width: int
     return UvCheck(True, "", coverage, overlap, uniformity)
 
 
-def _areas(corners: np.ndarray) -> np.ndarray:
-    """(m,) unsigned areas of triangles (m, 3, 2) or (m, 3, 3)."""
+def _uv_areas(corners: np.ndarray) -> np.ndarray:
+    """(m,) unsigned areas of UV triangles (m, 3, 2)."""
     e0, e1 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
-    if corners.shape[2] == 2:
-        return 0.5 * np.abs(e0[:, 0] * e1[:, 1] - e0[:, 1] * e1[:, 0])
-    return 0.5 * np.linalg.norm(np.cross(e0, e1), axis=1)
+    return 0.5 * np.abs(e0[:, 0] * e1[:, 1] - e0[:, 1] * e1[:, 0])
 
 
 def _overlap(parts: list, uvs: list[np.ndarray], width: int, height: int) -> float:
