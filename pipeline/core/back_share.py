@@ -31,23 +31,19 @@ corrects the level of what crosses; the profile's spread sets where it lands.
 
 from __future__ import annotations
 
-import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 
-import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
 from sssbake.pipeline.core.near_field import NearField
 from sssbake.pipeline.core.profile import Profile, profile_total, radius_for_energy
+from sssbake.pipeline.core.scatter_kernels import gather_rows
 
 #: Points the shares are averaged over at most (an area-weighted mean: ~1 % noise from sampling).
 POINTS = 1024
 #: Share of R_tot the gather may drop beyond its radius.
 ENERGY_DROPPED = 1e-3
-#: Point-source pairs evaluated at once (~100 bytes each).
-PAIRS_PER_CHUNK = 4_000_000
 #: Photons the walk must have seen leave behind before its share is trusted (~5 % error).
 MIN_BEHIND = 400
 #: Nodes in μ of the table of h, and in cos θ of its integral.
@@ -87,53 +83,26 @@ def gathered(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, p
     -------
     total, behind : (k, 3) float64
     """
-    x = np.asarray(positions_mm, dtype=np.float64)
-    normals = np.asarray(normals, dtype=np.float64)
+    x = np.ascontiguousarray(positions_mm, dtype=np.float64)
+    normals = np.ascontiguousarray(normals, dtype=np.float64)
+    points = np.ascontiguousarray(points, dtype=np.int64)
     field = NearField.build(x, faces, normals, profile)
     radius = radius_for_energy(ENERGY_DROPPED, profile)
-    tree = cKDTree(x)
-    mu_grid = np.linspace(-1.0, 1.0, _MU_NODES)
-    h_grid = behind_share(mu_grid)
+    h_grid = behind_share(np.linspace(-1.0, 1.0, _MU_NODES))
     total, behind = np.zeros((len(points), 3)), np.zeros((len(points), 3))
-    probe = tree.query_ball_point(x[points[:: max(1, len(points) // 64)]], radius.max(), return_length=True)
     threads = len(os.sched_getaffinity(0))
-    # the chunks' pairs in flight together stay within PAIRS_PER_CHUNK
-    chunk = max(1, int(PAIRS_PER_CHUNK / threads / max(float(np.mean(probe)), 1.0)))
+    # blocks of receivers, several per thread: their costs differ with how much lies within the radius
+    bounds = np.linspace(0, len(points), min(len(points), 8 * threads) + 1).astype(np.int64)
+    args = field.kernel_args
 
-    def gather(s: int) -> None:
-        """Receivers s..s+chunk-1: their rows of `total` and `behind` alone, each row's pairs in the
-        same order whatever the threads (the sums are the same bits)."""
-        lists = tree.query_ball_point(x[points[s:s + chunk]], radius.max())
-        counts = np.fromiter((len(lst) for lst in lists), dtype=np.int64, count=len(lists))
-        local = np.repeat(np.arange(len(lists)), counts)
-        rows = points[s:s + chunk][local]
-        cols = np.concatenate([np.asarray(lst, dtype=np.int64) for lst in lists])
-        _accumulate(local, rows, cols, x, normals, field.weights(rows, cols), radius, h_grid,
-                    total[s:s + len(lists)], behind[s:s + len(lists)])
+    def gather(k: int) -> None:
+        """Receivers bounds[k]..bounds[k + 1] - 1: their rows of `total` and `behind` alone, each
+        row's pairs in source order whatever the threads (the sums are the same bits)."""
+        gather_rows(bounds[k], bounds[k + 1], points, normals, radius, h_grid, *args, total, behind)
 
-    with ThreadPoolExecutor(threads) as pool:  # the pair weights and sums release the GIL
-        list(pool.map(gather, range(0, len(points), chunk)))
+    with ThreadPoolExecutor(threads) as pool:  # the rows release the GIL
+        list(pool.map(gather, range(len(bounds) - 1)))
     return total, behind
-
-
-@numba.njit(cache=True, nogil=True)
-def _accumulate(local, rows, cols, x, normals, weight, radius, h_grid, total, behind):
-    """Add each pair's weight (m, 3) within its channel's `radius` (3,) to its receiver's row
-    `local` (m,) of `total` (k, 3), and times h(n_row·n_col) (linear in `h_grid` over μ in
-    [-1, 1], uniform) to `behind` (k, 3), pair by pair in order: no per-pair arrays (in numpy
-    they took ~1.5 s of the 50k dragon's 6.5 M pairs: benchmarks/README.md#escape-gain-cost)."""
-    step = 2.0 / (len(h_grid) - 1)
-    for e in range(len(local)):
-        o, i = rows[e], cols[e]
-        mu = normals[o, 0] * normals[i, 0] + normals[o, 1] * normals[i, 1] + normals[o, 2] * normals[i, 2]
-        u = min(max((mu + 1.0) / step, 0.0), len(h_grid) - 1.0)
-        j = min(int(u), len(h_grid) - 2)
-        h = h_grid[j] + (u - j) * (h_grid[j + 1] - h_grid[j])
-        d = math.sqrt((x[o, 0] - x[i, 0]) ** 2 + (x[o, 1] - x[i, 1]) ** 2 + (x[o, 2] - x[i, 2]) ** 2)
-        for c in range(3):
-            if d <= radius[c]:
-                total[local[e], c] += weight[e, c]
-                behind[local[e], c] += weight[e, c] * h
 
 
 def gathered_shares(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, areas_mm2: np.ndarray,

@@ -8,6 +8,10 @@ passes over blocks of rows: one counts each row's entries per channel (distances
 the CSR arrays are allocated once at their final size, the other fills them. Both release the
 GIL, so the callers' threads run blocks side by side.
 
+Also compiled: the plan's descent to child cell pairs (`child_pairs`) and the operator's apply
+(`csr_rows_product`, `cluster_moments`): scipy's products read the 2 GB operator of the 150k
+dragon once per thread's block of columns, ~3.5× the CPU per column of one pass over all columns.
+
 The arithmetic follows the numpy definitions term by term (`profile.diffuse_reflectance_profile`,
 `disc_average.DiscMean`, and the disc mean's numpy form in tests/disc_reference.py), with two
 departures below float32 rounding (tests compare against the numpy forms):
@@ -113,6 +117,13 @@ def radial_table(weight: np.ndarray, depth: np.ndarray, sigma: np.ndarray, r_lo:
 
 
 @_inline
+def lagrange4(f):
+    """Weights of 4-point Lagrange interpolation at i + f (0 <= f < 1) from the nodes i - 1 .. i + 2."""
+    return (-f * (f - 1.0) * (f - 2.0) / 6.0, (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0,
+            -(f + 1.0) * f * (f - 2.0) / 2.0, (f + 1.0) * f * (f - 1.0) / 6.0)
+
+
+@_inline
 def _radial(r, a, h, radial, weight, depth, sigma, out):
     """`_expansion` (a = 0: Rd) from `radial_table`, or exactly outside its range."""
     u0, inv_step, values = radial
@@ -121,12 +132,7 @@ def _radial(r, a, h, radial, weight, depth, sigma, out):
     if u < 1.0 or i + 2 >= values.shape[2]:
         _expansion(r, a, h, weight, depth, sigma, out)
         return
-    f = u - i
-    # Lagrange weights of the nodes i - 1 .. i + 2 at i + f.
-    w0 = -f * (f - 1.0) * (f - 2.0) / 6.0
-    w1 = (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0
-    w2 = -(f + 1.0) * f * (f - 2.0) / 2.0
-    w3 = (f + 1.0) * f * (f - 1.0) / 6.0
+    w0, w1, w2, w3 = lagrange4(u - i)
     spread = 0.125 * a * a
     c2 = h * h / (r * r)
     for c in range(3):
@@ -330,6 +336,12 @@ def _triangle_in_plane(point, tri, log_r0, log_g, slope, g_table, steps, gauss_x
                            log_r0, log_g, slope, g_table, steps, gauss_x, gauss_w, 1.0 if turn > 0.0 else -1.0, out)
 
 
+@_inline
+def _is_point(o, i, d, a, sigma_tr):
+    """Whether source i (disc radius a) is a point to receiver o at distance d (`DiscMean.is_point`)."""
+    return o != i and d > POINT_REACH * a and a * sigma_tr < POINT_SIGMA
+
+
 @_jit
 def pair_weight(o, i, field, weight, depth, sigma, disc, cumulative, out, scratch):
     """∫_{cell_i} Rd(|p - x_o|) dp into out (3,) (`near_field.NearField.weights`).
@@ -344,7 +356,7 @@ def pair_weight(o, i, field, weight, depth, sigma, disc, cumulative, out, scratc
     dx, dy, dz = x[o, 0] - x[i, 0], x[o, 1] - x[i, 1], x[o, 2] - x[i, 2]
     d = math.sqrt(dx * dx + dy * dy + dz * dz)
     a = radius[i]
-    if o != i and d > POINT_REACH * a and a * sigma_tr < POINT_SIGMA:
+    if _is_point(o, i, d, a, sigma_tr):
         # Most pairs far from small sources: the point value (`DiscMean.is_point`).
         _radial(d, 0.0, 0.0, radial, weight, depth, sigma, out)
         for c in range(3):
@@ -462,3 +474,130 @@ def far_fill(j0, j1, rows, keys, ptr, lists, xt, centroid, spread, trace, radius
                     kernel += (value[c, 2, node] + w * slope[c, 2, node]) * trace[s]
                     indices[at[c]], data[at[c]] = c * m + s, kernel
                     at[c] += 1
+
+
+@_jit
+def csr_rows_product(r0, r1, indptr, indices, data, x, y, add):
+    """Rows r0..r1 - 1 of the sparse product A x, A in CSR (indptr, indices, data) and x (width, K)
+    dense: into y (rows, K) in place, or added to it where `add` (`scatter_operator.ScatterOperator.apply`).
+
+    Each row is summed in `y`'s dtype entry by entry in CSR order, as scipy's `A @ x` does (its
+    result is equal bit for bit), but over all K columns at once: the matrix is read once per
+    call, not once per block of columns, and the loop over the columns vectorises."""
+    k = x.shape[1]
+    s = np.zeros(k, dtype=y.dtype)
+    for r in range(r0, r1):
+        for c in range(k):
+            s[c] = 0
+        for jj in range(indptr[r], indptr[r + 1]):
+            a = data[jj]
+            row = x[indices[jj]]
+            for c in range(k):
+                s[c] += a * row[c]
+        if add:
+            for c in range(k):
+                y[r, c] += s[c]
+        else:
+            for c in range(k):
+                y[r, c] = s[c]
+
+
+@_jit
+def cluster_moments(e, weights, starts, out):
+    """Per channel c and cluster s (the vertices starts[s] .. starts[s + 1] - 1, the last to the end)
+    Σ_i weights[c, i] e[i, :] summed in float64 in vertex order into out[c·m + s, :] (3m, K),
+    m = len(starts): numpy's `add.reduceat` of the weighted signal, but in one pass for the
+    three channels and without the (n, K) product (reduceat sums pairwise: the sums differ by
+    ~1e-16 relative, which float32 moments round away)."""
+    n, k = e.shape
+    m = len(starts)
+    acc = np.zeros((3, k))
+    for s in range(m):
+        end = starts[s + 1] if s + 1 < m else n
+        acc[:] = 0.0
+        for i in range(starts[s], end):
+            for c in range(3):
+                w = weights[c, i]
+                for j in range(k):
+                    acc[c, j] += e[i, j] * w
+        for c in range(3):
+            for j in range(k):
+                out[c * m + s, j] = acc[c, j]
+
+
+@_jit
+def child_pairs(pairs, first, count, coords, a):
+    """The children of (target cell, source cell) pairs, split by their gap (`scatter_operator.scatter_plan`).
+
+    Each pair (t, s) (p, 2) stands for the cells first[t] + i, i < count[t], against first[s] + j,
+    j < count[s], in that order (i major); coords (m, 3) are the children's integer coordinates.
+    Returns (near, far): the child pairs within `a` cells of each other in every axis and the
+    others, each (q, 2) int64 in the order above. Counted first, then written: numpy's expansion
+    held every child pair and its gap at once (~2 s of the 150k dragon's plan)."""
+    empty = np.empty((0, 2), dtype=np.int64)
+    near_count, far_count = _child_pass(pairs, first, count, coords, a, empty, empty, False)
+    near = np.empty((near_count, 2), dtype=np.int64)
+    far = np.empty((far_count, 2), dtype=np.int64)
+    _child_pass(pairs, first, count, coords, a, near, far, True)
+    return near, far
+
+
+@_jit
+def _child_pass(pairs, first, count, coords, a, near, far, write):
+    """`child_pairs`' walk over the child pairs: their near and far counts, each written into
+    `near` or `far` where `write`."""
+    near_at = far_at = 0
+    for p in range(pairs.shape[0]):
+        t, s = pairs[p, 0], pairs[p, 1]
+        for i in range(first[t], first[t] + count[t]):
+            for j in range(first[s], first[s] + count[s]):
+                gap = max(abs(coords[i, 0] - coords[j, 0]), abs(coords[i, 1] - coords[j, 1]),
+                          abs(coords[i, 2] - coords[j, 2]))
+                if gap > a:
+                    if write:
+                        far[far_at, 0], far[far_at, 1] = i, j
+                    far_at += 1
+                else:
+                    if write:
+                        near[near_at, 0], near[near_at, 1] = i, j
+                    near_at += 1
+    return near_at, far_at
+
+
+@_jit
+def gather_rows(j0, j1, points, normals, radius, h_grid, field, weight, depth, sigma, disc, cumulative, total, behind):
+    """Rows j0..j1 - 1 of `total` and `behind` (k, 3) of `back_share.gathered`: receiver points[j] gathers every vertex
+    within its channel's `radius` (3,), in index order, with `scatter_kernels.pair_weight`'s
+    weight (the field, profile, disc and cumulative of `NearField.kernel_args`), and times
+    h(n_o·n_i) (linear in `h_grid` over μ in [-1, 1], uniform) into `behind`.
+
+    Every vertex is tested against every receiver (1024 × n distances cost less than a k-d tree's
+    lists of the pairs within the radius), and each pair's weight goes straight into its sums: no
+    per-pair arrays (benchmarks/README.md#escape-gain-cost). Pairs far from small sources take
+    pair_weight's point value here, inline: called, it cost ~200 ns a pair against ~30."""
+    x, area, a_radius = field[0], field[1], field[2]
+    sigma_tr, radial = disc[8], disc[9]
+    r_max = max(radius[0], radius[1], radius[2])
+    step = 2.0 / (len(h_grid) - 1)
+    value, scratch = np.empty(3), np.empty(6)
+    for j in range(j0, j1):
+        o = points[j]
+        for i in range(len(x)):
+            d = math.sqrt((x[o, 0] - x[i, 0]) ** 2 + (x[o, 1] - x[i, 1]) ** 2 + (x[o, 2] - x[i, 2]) ** 2)
+            if d > r_max:
+                continue
+            a = a_radius[i]
+            if _is_point(o, i, d, a, sigma_tr):
+                _radial(d, 0.0, 0.0, radial, weight, depth, sigma, value)
+                for c in range(3):
+                    value[c] *= area[i]
+            else:
+                pair_weight(o, i, field, weight, depth, sigma, disc, cumulative, value, scratch)
+            mu = normals[o, 0] * normals[i, 0] + normals[o, 1] * normals[i, 1] + normals[o, 2] * normals[i, 2]
+            u = min(max((mu + 1.0) / step, 0.0), len(h_grid) - 1.0)
+            m = min(int(u), len(h_grid) - 2)
+            h = h_grid[m] + (u - m) * (h_grid[m + 1] - h_grid[m])
+            for c in range(3):
+                if d <= radius[c]:
+                    total[j, c] += value[c]
+                    behind[j, c] += value[c] * h

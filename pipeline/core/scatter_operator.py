@@ -56,7 +56,14 @@ from sssbake.pipeline.core.profile import (
 from sssbake.pipeline.core.freed_memory import release_freed_memory
 from sssbake.pipeline.core.morton import morton_codes
 from sssbake.pipeline.core.near_field import NearField
-from sssbake.pipeline.core.scatter_kernels import far_fill, near_fill, pair_counts
+from sssbake.pipeline.core.scatter_kernels import (
+    child_pairs,
+    cluster_moments,
+    csr_rows_product,
+    far_fill,
+    near_fill,
+    pair_counts,
+)
 from sssbake.pipeline.core.surface import vertex_areas
 
 #: Candidate pairs per block of rows a thread builds at once: small enough that the threads share
@@ -87,9 +94,10 @@ class ScatterOptions:
         Store the matrices and run the products in float32 (half the memory, ~1.5× faster);
         the rounding is ~1e-6 of q, far below the clustering error (tests measure it).
     threads : int
-        Worker threads for building and applying (the sparse products release the GIL).
+        Worker threads for building and applying (the compiled loops release the GIL).
     block : int
-        Signals gathered at once per thread: short blocks keep the sources in cache.
+        Signals per thread of one pass of `ScatterOperator.apply`: a pass reads the operator once
+        for threads · block signals (the threads share its rows), and bounds the pass's temporaries.
     """
 
     energy_dropped: float = 1e-2
@@ -182,26 +190,36 @@ class ScatterOperator:
         elif out.shape != (3, n, k):
             raise ValueError(f"scatter apply: out must be (3, {n}, {k}), got {out.shape}")
         dtype = self.near.dtype
-
-        def run(b: slice) -> None:
-            e = signal[self.order, b]
-            q = self.near @ e.astype(dtype, copy=False)
-            for f in self.levels:
-                m = len(f.starts)
-                moments = np.empty((3 * m, e.shape[1]), dtype)
-                for c in range(3):  # one channel's weighted signal at a time bounds the temporaries
-                    moments[c * m:(c + 1) * m] = np.add.reduceat(e * self.source_area[c][:, None], f.starts, axis=0)
-                q += f.matrix @ moments
-            out[:, self.order, b] = q.reshape(3, n, -1)
-
-        # Blocks of at most `block` signals, as many as a multiple of the threads, of equal size.
-        count = -(-k // self.block)
-        count = min(k, count + (-count) % self.threads)
+        matrices = [self.near, *(f.matrix for f in self.levels)]
+        # Rows in blocks of about equal entries, several per thread so that the threads finish together.
+        entries = sum(m.indptr.astype(np.int64) for m in matrices)
+        cuts = np.searchsorted(entries, np.linspace(0, entries[-1], 8 * self.threads + 1)[1:-1])
+        bounds = np.unique(np.r_[0, cuts, 3 * n]).tolist()
+        blocks = list(zip(bounds[:-1], bounds[1:]))
+        clamp = bool(np.all(signal >= 0))
+        # Passes of `threads · block` signals: every thread reads its rows of the matrices once per
+        # pass for all the pass's signals.
+        count = -(-k // (self.threads * self.block))
         edges = np.linspace(0, k, count + 1).round().astype(int)
-        _run_all(run, [slice(a, b) for a, b in zip(edges[:-1], edges[1:])], self.threads)
-        if np.all(signal >= 0):
-            # The spread term is an expansion: it can dip a hair below zero, which q cannot.
-            np.maximum(out, 0.0, out=out)
+        for a, b in zip(edges[:-1], edges[1:]):
+            e = signal[self.order, a:b]
+            moments = [np.empty((3 * len(f.starts), b - a), dtype) for f in self.levels]
+            # Each level's moments read every vertex once: as much work per level, one level a thread.
+            _run_all(lambda f_m: cluster_moments(e, self.source_area, f_m[0].starts, f_m[1]),
+                     list(zip(self.levels, moments)), self.threads)
+            sources = [e.astype(dtype, copy=False), *moments]
+            q = np.empty((3 * n, b - a), dtype)
+
+            def run(rows: tuple) -> None:
+                # near first, then each level's sum added: q's rounding is scipy's `near @ e + Σ_l F_l @ m_l`
+                for i, (m, x) in enumerate(zip(matrices, sources)):
+                    csr_rows_product(rows[0], rows[1], m.indptr, m.indices, m.data, x, q, i > 0)
+
+            _run_all(run, blocks, self.threads)
+            if clamp:
+                # The spread term is an expansion: it can dip a hair below zero, which q cannot.
+                np.maximum(q, 0.0, out=q)
+            out[:, self.order, a:b] = q.reshape(3, n, -1)
         return out
 
 
@@ -380,11 +398,9 @@ def scatter_plan(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarra
         # Children of near parent pairs: near ones descend, the others are well separated here.
         first_child = cell_of[level][starts[level + 1]]
         n_children = np.diff(np.r_[first_child, len(starts[level])])
-        pairs = _expand_runs(pairs, first_child, n_children)
-        gap = np.abs(cell_coords[level][pairs[:, 0]] - cell_coords[level][pairs[:, 1]]).max(axis=1)
-        if np.any(gap > a):
-            far.append((level, _Clusters.build(x, area, nrm, starts[level], cell_of[level], pairs[gap > a])))
-        pairs = pairs[gap <= a]
+        pairs, separated = child_pairs(pairs, first_child, n_children, cell_coords[level], a)
+        if len(separated):
+            far.append((level, _Clusters.build(x, area, nrm, starts[level], cell_of[level], separated)))
     near_ptr, near_lists = _lists(pairs.astype(np.int32), len(starts[0]))
     size = np.diff(np.r_[starts[0], n])
     per_cell = np.bincount(pairs[:, 0], weights=size[pairs[:, 1]], minlength=len(starts[0])).astype(np.int64)
@@ -635,16 +651,6 @@ def _near_cell_pairs(coords: np.ndarray, a: int) -> np.ndarray:
         hit = keys[pos] == k
         out.append(np.column_stack([ok[hit], pos[hit]]))
     return np.concatenate(out)
-
-
-def _expand_runs(pairs: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """(p', 2) all (first[t] + i, first[s] + j), i < count[t], j < count[s], for pairs (t, s)."""
-    ct, cs = count[pairs[:, 0]], count[pairs[:, 1]]
-    per = ct * cs
-    which = np.repeat(np.arange(len(pairs)), per)
-    local = np.arange(per.sum()) - np.repeat(np.cumsum(per) - per, per)
-    cs_w = cs[which]
-    return np.column_stack([first[pairs[which, 0]] + local // cs_w, first[pairs[which, 1]] + local % cs_w])
 
 
 def _lists(pairs: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:

@@ -54,6 +54,8 @@ MAX_STEPS = 200_000
 #: starts under the light and loses it (the 20 mm sample sphere, marble: 0.99 at 0.1 free path, 0.9
 #: at 1, 0 at 40), while an object 1e5 free paths across is a half-space within 1 %.
 MAX_START_DEPTH = 0.1
+#: Uniforms the walk draws ahead at least (a block ends where a flight would read past it).
+_BLOCK = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -164,89 +166,133 @@ def _walk(body, sigma_s: float, sigma_a: float, eta: float, photons: int, seed: 
     sin_e = eta * sin_t
     light = (np.sqrt(1.0 - sin_e ** 2)[:, None] * n - (sin_e * np.cos(phi))[:, None] * t1
              - (sin_e * np.sin(phi))[:, None] * t2)
-    # Only the photons still inside are kept, compacted after each flight. Each flight's random
-    # numbers are drawn in numpy, in the order and sizes the photons' fates ask for them, and one
-    # compiled pass (`_fly`) moves, scatters, absorbs, reflects or lets out every photon.
-    state = np.hstack((p - offset * n, d, light))
+    # Only the photons still inside are kept, compacted in place after each flight (the first m
+    # rows of `state`). Every random number after the entry is read in order from blocks the
+    # generator draws ahead (numpy draws a block as it draws its parts one after another), in the
+    # order and sizes the photons' fates ask for them, and each flight's length from the block's
+    # log1p taken in numpy (the compiled log1p differs in the last bit). The plane's flights all
+    # run compiled; inside, each calls embree between two compiled passes. A few calls per flight,
+    # not the two dozen numpy ones that took most of the walk once few photons were left.
+    state = np.ascontiguousarray(np.hstack((p - offset * n, d, light)))
     walls = np.array([[0.0, 0.0, 1.0]]) if body is None else normal
-    left = behind = 0
-    for _ in range(MAX_STEPS):
-        if not len(state):
-            break
-        flight = -np.log1p(-rng.random(len(state))) / sigma_t
+    flight, distance, wall = np.empty(photons), np.empty(photons), np.empty(photons, dtype=np.int32)
+    origin, direction = np.empty((photons, 3), dtype=np.float32), np.empty((photons, 3), dtype=np.float32)
+    reach = np.empty(photons, dtype=np.float32)
+    uniform, counts = np.empty(0), np.zeros(3, dtype=np.int64)  # left, behind, flights
+    m, at = photons, 0
+    while m and counts[2] < MAX_STEPS:
+        if len(uniform) - at < 4 * m:  # a flight reads at most 4 per photon
+            uniform = np.concatenate((uniform[at:], rng.random(max(4 * photons, _BLOCK))))
+            logs, at = np.log1p(-uniform), 0
         if body is None:
-            up = state[:, 5] > 0.0
-            distance = np.where(up, -state[:, 2] / np.where(up, state[:, 5], 1.0), np.inf)
-            wall = np.where(up & (distance < flight), 0, -1)
-        else:
-            found = scene.run(state[:, :3].astype(np.float32), state[:, 3:6].astype(np.float32),
-                              dists=flight.astype(np.float32), output=1)
-            wall, distance = found["primID"], found["tfar"].astype(np.float64)
-        met = int((wall >= 0).sum())
-        absorbed = rng.random(len(state) - met)
-        scattered = int((absorbed < albedo).sum())
-        z, angle, leave = rng.random(scattered), rng.random(scattered), rng.random(met)
-        stays, out, out_behind = _fly(state, flight, wall, distance, walls, absorbed, z, angle, leave, albedo, eta,
-                                      offset)
-        left, behind = left + out, behind + out_behind
-        state = state[stays]
-    return left / photons, behind / photons
+            m, at = _plane_flights(state, m, uniform, logs, at, sigma_t, albedo, eta, flight, wall, distance, walls,
+                                   counts)
+            continue
+        at = _rays(state, m, logs, at, sigma_t, flight, origin, direction, reach)
+        found = scene.run(origin[:m], direction[:m], dists=reach[:m], output=1)
+        wall[:m], distance[:m] = found["primID"], found["tfar"]
+        m, at = _fly(state, m, flight, wall, distance, walls, uniform, at, albedo, eta, offset, counts)
+        counts[2] += 1
+    return int(counts[0]) / photons, int(counts[1]) / photons
 
 
-@numba.njit(cache=True)
-def _fly(state, flight, wall, distance, walls, absorbed, z, angle, leave, albedo, eta, offset):
-    """One flight of every photon in `state` (m, 9): position, direction, towards its light, in
-    place. A photon whose `wall` (m,) is >= 0 meets the surface of normal ``walls[wall]`` after
-    `distance` (m,) and leaves with Fresnel's transmittance at its outside angle or is reflected
-    (`offset` back inside); the others fly `flight` (m,) and are absorbed or scatter isotropically.
-    The uniforms are used in photon order: `absorbed` one per free photon, `z` and `angle` one
-    per scattered one, `leave` one per photon at the wall.
+@numba.njit(cache=True, nogil=True)
+def _plane_flights(state, m, uniform, logs, at, sigma_t, albedo, eta, flight, wall, distance, walls, counts):
+    """Flights of the first m photons of `state` under the plane z = 0 (`_fly`'s, meeting it where
+    they fly up past it) while `uniform` from `at` holds a flight's worth and `counts[2]` (flights
+    so far) is under `MAX_STEPS`; their flight lengths -logs / sigma_t. Returns m and `at` after."""
+    while m and len(uniform) - at >= 4 * m and counts[2] < MAX_STEPS:
+        for k in range(m):
+            flight[k] = -logs[at + k] / sigma_t
+            up = state[k, 5] > 0.0
+            distance[k] = -state[k, 2] / state[k, 5] if up else np.inf
+            wall[k] = 0 if up and distance[k] < flight[k] else -1
+        m, at = _fly(state, m, flight, wall, distance, walls, uniform, at + m, albedo, eta, 0.0, counts)
+        counts[2] += 1
+    return m, at
+
+
+@numba.njit(cache=True, nogil=True)
+def _rays(state, m, logs, at, sigma_t, flight, origin, direction, reach):
+    """The flight lengths -logs[at:at + m] / sigma_t of the first m photons of `state` into
+    `flight`, and their rays for embree (float32 origins, directions and lengths). Returns `at` after."""
+    for k in range(m):
+        flight[k] = -logs[at + k] / sigma_t
+        for a in range(3):
+            origin[k, a] = state[k, a]
+            direction[k, a] = state[k, 3 + a]
+        reach[k] = flight[k]
+    return at + m
+
+
+@numba.njit(cache=True, nogil=True)
+def _fly(state, m, flight, wall, distance, walls, uniform, at, albedo, eta, offset, counts):
+    """One flight of the first m photons of `state` (m, 9): position, direction, towards its light,
+    in place, the photons still inside compacted to its first rows in order. A photon whose `wall`
+    (m,) is >= 0 meets the surface of normal ``walls[wall]`` after `distance` (m,) and leaves with
+    Fresnel's transmittance at its outside angle or is reflected (`offset` back inside); the others
+    fly `flight` (m,) and are absorbed or scatter isotropically. The uniforms are read from
+    `uniform` at `at` in blocks: one per free photon (absorbed?), then one per scattered one (cos θ),
+    one per scattered one (azimuth), one per photon at the wall (leaves?), each in photon order.
+    Adds the photons that left, and of them those that left behind their light (n_exit·ω < 0), to
+    counts[0] and counts[1].
 
     Returns
     -------
-    stays : (m,) bool
-    left, behind : int
-        Photons that left, and of them those that left behind their light (n_exit·ω < 0).
+    m, at : int
+        Photons still inside; the next uniform's index.
     """
-    stays = np.ones(len(state), dtype=np.bool_)
-    left = behind = 0
-    free = scattered = at_wall = 0
-    for k in range(len(state)):
+    met = 0
+    for k in range(m):
+        met += wall[k] >= 0
+    absorbed, scattered = at, 0
+    for j in range(m - met):
+        scattered += uniform[absorbed + j] < albedo
+    z = absorbed + m - met
+    angle = z + scattered
+    leave = angle + scattered
+    kept = 0
+    for k in range(m):
         hit = wall[k] >= 0
         step = distance[k] if hit else flight[k]
+        stays = True
         for a in range(3):
             state[k, a] += step * state[k, 3 + a]
         if not hit:
-            if absorbed[free] >= albedo:
-                stays[k] = False
+            if uniform[absorbed] >= albedo:
+                stays = False
             else:
-                cos_z = 2.0 * z[scattered] - 1.0
-                r, phi = np.sqrt(1.0 - cos_z * cos_z), 2.0 * np.pi * angle[scattered]
+                cos_z = 2.0 * uniform[z] - 1.0
+                r, phi = np.sqrt(1.0 - cos_z * cos_z), 2.0 * np.pi * uniform[angle]
                 state[k, 3], state[k, 4], state[k, 5] = r * np.cos(phi), r * np.sin(phi), cos_z
-                scattered += 1
-            free += 1
-            continue
-        w = walls[wall[k]]
-        cos_i = state[k, 3] * w[0] + state[k, 4] * w[1] + state[k, 5] * w[2]
-        sign = 1.0 if cos_i > 0.0 else (-1.0 if cos_i < 0.0 else 0.0)  # towards the outward normal
-        cos_i = abs(cos_i)
-        # leaving: the transmittance at the outside angle (reciprocity), 0 past the critical angle
-        cos_out = np.sqrt(min(max(1.0 - eta * eta * (1.0 - cos_i * cos_i), 0.0), 1.0))
-        if leave[at_wall] < _transmittance(eta, cos_out):
-            left += 1
-            if sign * (w[0] * state[k, 6] + w[1] * state[k, 7] + w[2] * state[k, 8]) < 0.0:
-                behind += 1
-            stays[k] = False
+                z, angle = z + 1, angle + 1
+            absorbed += 1
         else:
-            for a in range(3):
-                outward = w[a] * sign
-                state[k, 3 + a] -= 2.0 * cos_i * outward
-                state[k, a] -= offset * outward
-        at_wall += 1
-    return stays, left, behind
+            w = walls[wall[k]]
+            cos_i = state[k, 3] * w[0] + state[k, 4] * w[1] + state[k, 5] * w[2]
+            sign = 1.0 if cos_i > 0.0 else (-1.0 if cos_i < 0.0 else 0.0)  # towards the outward normal
+            cos_i = abs(cos_i)
+            # leaving: the transmittance at the outside angle (reciprocity), 0 past the critical angle
+            cos_out = np.sqrt(min(max(1.0 - eta * eta * (1.0 - cos_i * cos_i), 0.0), 1.0))
+            if uniform[leave] < _transmittance(eta, cos_out):
+                counts[0] += 1
+                if sign * (w[0] * state[k, 6] + w[1] * state[k, 7] + w[2] * state[k, 8]) < 0.0:
+                    counts[1] += 1
+                stays = False
+            else:
+                for a in range(3):
+                    outward = w[a] * sign
+                    state[k, 3 + a] -= 2.0 * cos_i * outward
+                    state[k, a] -= offset * outward
+            leave += 1
+        if stays:
+            if kept != k:
+                state[kept] = state[k]
+            kept += 1
+    return kept, leave
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _transmittance(eta, cos_i):
     """`fresnel.fresnel_transmittance` of one cosine, compiled."""
     ci = min(max(cos_i, 0.0), 1.0)

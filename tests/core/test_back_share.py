@@ -4,10 +4,13 @@ closed forms."""
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import cKDTree
 
-from sssbake.pipeline.core.back_share import MIN_BEHIND, behind_share, gathered, gathered_shares, object_gains
+from sssbake.pipeline.core.back_share import (_MU_NODES, ENERGY_DROPPED, MIN_BEHIND, behind_share, gathered,
+                                              gathered_shares, object_gains)
 from sssbake.pipeline.core.materials import preset
-from sssbake.pipeline.core.profile import disc_integral, profile_for, profile_total
+from sssbake.pipeline.core.near_field import NearField
+from sssbake.pipeline.core.profile import disc_integral, profile_for, profile_total, radius_for_energy
 
 
 def test_behind_share_closed_forms():
@@ -73,3 +76,26 @@ def test_object_gains_match_the_walks_front_and_back_and_fall_back_to_one_factor
     np.testing.assert_allclose(np.multiply(gain, back_gain)[:2] * back[:2], [1.0, 1.0])
     # too few photons behind: one factor for all of the channel's light
     assert gain[2] == pytest.approx(1.6 / 1.0) and back_gain[2] == 1.0
+
+
+def test_the_compiled_gather_is_the_sum_over_the_pairs_within_the_radius():
+    """`gathered` against its definition in numpy: the k-d tree's pairs within each channel's
+    radius, `NearField.weights`, h interpolated in μ, summed per receiver."""
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=6.0)
+    x, normals = np.asarray(sphere.vertices), np.asarray(sphere.vertex_normals)
+    p = profile_for(preset("skin1"))
+    points = np.arange(0, len(x), 7)
+    total, behind = gathered(x, sphere.faces, normals, p, points)
+    radius = radius_for_energy(ENERGY_DROPPED, p)
+    lists = cKDTree(x).query_ball_point(x[points], radius.max())
+    local = np.repeat(np.arange(len(points)), [len(lst) for lst in lists])
+    rows, cols = points[local], np.concatenate([np.asarray(lst, dtype=np.int64) for lst in lists])
+    weight = NearField.build(x, sphere.faces, normals, p).weights(rows, cols)
+    mu_grid = np.linspace(-1.0, 1.0, _MU_NODES)
+    h = np.interp(np.einsum("ij,ij->i", normals[rows], normals[cols]), mu_grid, behind_share(mu_grid))
+    within = np.linalg.norm(x[rows] - x[cols], axis=1)[:, None] <= radius
+    expected_total, expected_behind = np.zeros((len(points), 3)), np.zeros((len(points), 3))
+    np.add.at(expected_total, local, np.where(within, weight, 0.0))
+    np.add.at(expected_behind, local, np.where(within, weight * h[:, None], 0.0))
+    np.testing.assert_allclose(total, expected_total, rtol=1e-12)
+    np.testing.assert_allclose(behind, expected_behind, rtol=1e-12)

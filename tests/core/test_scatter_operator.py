@@ -238,3 +238,89 @@ def test_compiled_entries_equal_their_numpy_definitions():
                 got = slice(far.matrix.indptr[row], far.matrix.indptr[row + 1])
                 np.testing.assert_array_equal(far.matrix.indices[got], c * m + s[keep])
                 np.testing.assert_allclose(far.matrix.data[got], kernel[keep], rtol=1e-9)
+
+
+def scipy_apply(op, signal: np.ndarray) -> np.ndarray:
+    """`ScatterOperator.apply` as scipy products (the form the compiled one replaced): near @ e,
+    plus each level's matrix @ its clusters' moments (numpy's reduceat), clamped at 0."""
+    n, dtype = len(op.order), op.near.dtype
+    e = signal[op.order]
+    q = op.near @ e.astype(dtype)
+    for f in op.levels:
+        moments = np.concatenate([np.add.reduceat(e * op.source_area[c][:, None], f.starts, axis=0)
+                                  for c in range(3)]).astype(dtype)
+        q += f.matrix @ moments
+    out = np.empty((3, n, signal.shape[1]), dtype)
+    out[:, op.order] = q.reshape(3, n, -1)
+    return np.maximum(out, 0.0) if np.all(signal >= 0) else out
+
+
+@pytest.mark.parametrize("float32, threads, block", [(True, 2, 32), (True, 2, 3), (False, 1, 4), (True, 3, 5)])
+def test_compiled_apply_equals_the_scipy_products(float32, threads, block):
+    # `scatter_kernels.csr_rows_product` sums each row as scipy's products do, `cluster_moments`
+    # the moments in vertex order (numpy's reduceat pairwise): equal to the rounding of the moments,
+    # in one pass or several (k > threads · block), on any number of threads, and for signals of
+    # any sign (no clamp).
+    x, f, _, normals = sphere(25.0)
+    op = scatter_operator(x, f, normals, profile_for(preset("marble")),
+                          ScatterOptions(float32=float32, threads=threads, block=block))
+    assert len(op.levels) >= 2
+    rtol = 1e-6 if float32 else 1e-13
+    signal = lit(normals, k=23)
+    for s in (signal, signal - 0.3):
+        got = op.apply(s, out=np.empty((3, len(x), 23), dtype=op.near.dtype))
+        ref = scipy_apply(op, s)
+        np.testing.assert_allclose(got, ref, rtol=rtol, atol=rtol * np.abs(ref).max())
+    assert np.all(got == 0) == np.all(ref == 0) and np.any(got < 0)
+
+
+def test_compiled_products_and_moments_equal_their_numpy_definitions():
+    from sssbake.pipeline.core.scatter_kernels import cluster_moments, csr_rows_product
+
+    x, f, _, normals = sphere(25.0)
+    for dtype in (np.float32, np.float64):
+        op = scatter_operator(x, f, normals, profile_for(preset("marble")),
+                              ScatterOptions(float32=dtype == np.float32))
+        e = lit(normals, k=11)[op.order] - 0.2
+        for level in op.levels:
+            got = np.empty((3 * len(level.starts), 11))
+            cluster_moments(e, op.source_area, level.starts, got)
+            ref = np.concatenate([np.add.reduceat(e * op.source_area[c][:, None], level.starts, axis=0)
+                                  for c in range(3)])
+            np.testing.assert_allclose(got, ref, rtol=1e-13, atol=1e-15 * np.abs(ref).max())
+            # the products: bit for bit scipy's, written or added
+            m = level.matrix
+            moments = ref.astype(dtype)
+            y = np.ones((m.shape[0], 11), dtype)
+            csr_rows_product(0, m.shape[0], m.indptr, m.indices, m.data, moments, y, False)
+            np.testing.assert_array_equal(y, m @ moments)
+            csr_rows_product(5, m.shape[0], m.indptr, m.indices, m.data, moments, y, True)
+            np.testing.assert_array_equal(y[5:], (m @ moments)[5:] * 2)
+            np.testing.assert_array_equal(y[:5], (m @ moments)[:5])
+
+
+def expand_runs(pairs: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """(p', 2) all (first[t] + i, first[s] + j), i < count[t], j < count[s], for pairs (t, s): the
+    numpy expansion `scatter_kernels.child_pairs` replaced."""
+    ct, cs = count[pairs[:, 0]], count[pairs[:, 1]]
+    per = ct * cs
+    which = np.repeat(np.arange(len(pairs)), per)
+    local = np.arange(per.sum()) - np.repeat(np.cumsum(per) - per, per)
+    cs_w = cs[which]
+    return np.column_stack([first[pairs[which, 0]] + local // cs_w, first[pairs[which, 1]] + local % cs_w])
+
+
+def test_compiled_child_pairs_equal_the_numpy_expansion():
+    from sssbake.pipeline.core.scatter_kernels import child_pairs
+
+    rng = np.random.default_rng(5)
+    count = rng.integers(0, 9, size=60)
+    first = np.r_[0, np.cumsum(count)[:-1]]
+    coords = rng.integers(0, 12, size=(int(count.sum()), 3))
+    pairs = rng.integers(0, 60, size=(400, 2))
+    every = expand_runs(pairs, first, count)
+    gap = np.abs(coords[every[:, 0]] - coords[every[:, 1]]).max(axis=1)
+    near, far = child_pairs(pairs, first, count, coords, 2)
+    np.testing.assert_array_equal(near, every[gap <= 2])
+    np.testing.assert_array_equal(far, every[gap > 2])
+    assert near.dtype == far.dtype == np.int64 and len(near) and len(far)

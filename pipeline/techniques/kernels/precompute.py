@@ -57,6 +57,8 @@ from sssbake.pipeline.mesh.simplify import simplify
 from sssbake.pipeline.mesh.surface_locate import locate_on_mesh
 from sssbake.pipeline.mesh.texels import rasterize_atlas
 from sssbake.pipeline.techniques.kernels.border import border_texels
+from sssbake.pipeline.techniques.kernels.compiled import (grouped_products, local_transport, mix_global, near_table,
+                                                            shared_hats)
 from sssbake.pipeline.techniques.kernels.data import KernelsData
 from sssbake.pipeline.techniques.kernels.throughput import Throughput, throughput_matrix
 
@@ -306,7 +308,8 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     key_type = np.int32 if n * n < 2**31 else np.int64
     f_keys = np.repeat(np.arange(n, dtype=key_type), np.diff(throughput.indptr)) * key_type(n)
     f_keys += throughput.indices.astype(key_type)
-    ctx = _Context(x, faces, g_faces, area, corners, bary, real_of, dual, throughput, f_keys, n, local, params)
+    ctx = _Context(x, faces, g_faces, area, corners, bary, real_of, dual, throughput, f_keys, n, local,
+                   near_table(local), params)
     # the dropped diagonal F_αα, handed out through the direct term instead
     w0 = dual[:, :, None] * throughput.field.own[corners[:s_count]]
     kernels, direct, misfit = _blend(ctx, grid, s_count, r, w0, options.blend, options.ridge)
@@ -405,12 +408,12 @@ class _Context:
     f_keys: np.ndarray      # (nnz,) row · n + column, increasing (int32 when n² fits)
     vertex_count: int
     local: ProfileTable     # finer table for texel pairs
+    near: tuple             # its closed form's stand-in (`compiled.near_table`)
     params: Profile
 
     def transport(self, receiver: np.ndarray, source: np.ndarray) -> np.ndarray:
         """(m, 3) T(receiver, source) between texels."""
-        delta = self.x[receiver] - self.x[source]
-        out = self.local(np.einsum("ij,ij->i", delta, delta)) * self.area[source, None]
+        out = local_transport(self.local, self.near, self.x, self.area, receiver, source)
         same = receiver == source
         if same.any():
             out[same] = disc_integral(np.sqrt(self.area[source[same]] / np.pi), self.params)
@@ -432,8 +435,7 @@ class _Context:
         cs = self.face_corners[self.face[src[first_block]]]
         cr = self.face_corners[rface[first_block]]
         block = self.entries(cs[:, a].reshape(-1), cr[:, b].reshape(-1)).reshape(len(first_block), 3, 3, 3)
-        mixed = np.einsum("va,vabc->vbc", self.dual[src], block[per_source])
-        return np.einsum("pb,pbc->pc", self.bary[receiver], mixed[per_pair])
+        return mix_global(self.dual, src, block, per_source, self.bary, receiver, per_pair)
 
     def entries(self, sources: np.ndarray, receivers: np.ndarray) -> np.ndarray:
         """(m, 3) the stored F entries (0 where F has none), found in its sorted (row, column) keys."""
@@ -456,12 +458,7 @@ class _Context:
     def shared(self, receiver: np.ndarray, source: np.ndarray) -> np.ndarray:
         """(m, 3 α) Σ_β ψ_β(receiver) [β = α-th corner of source]: how the direct weights of the
         source's corners reach the receiver."""
-        cs, cr = self.corners[source], self.corners[receiver]
-        weight = self.bary[receiver]
-        out = np.zeros((len(source), 3))
-        for b in range(3):
-            out += (cs == cr[:, b, None]) * weight[:, b, None]
-        return out
+        return shared_hats(self.corners, self.bary, receiver, source)
 
 
 def _blend(ctx: _Context, grid: _Grid, s_count: int, r: int, w0: np.ndarray, blend: str,
@@ -559,15 +556,13 @@ def _fit_chunk(ctx: _Context, centres: np.ndarray, w0: np.ndarray, ridge: float,
     truth = ctx.transport(ring, ring_sources)
     target = truth - ring_smooth
     design = ctx.shared(ring, ring_sources)
-    normal = np.stack([np.bincount(ring_local, weights=design[:, a] * design[:, b], minlength=m)
-                       for a in range(3) for b in range(3)], axis=1).reshape(m, 3, 3)
-    rhs = np.stack([np.bincount(ring_local, weights=design[:, a] * target[:, c], minlength=m)
-                    for a in range(3) for c in range(3)], axis=1).reshape(m, 3, 3)
+    normal = grouped_products(ring_local, design, design, m)
+    rhs = grouped_products(ring_local, design, target, m)
     count = np.bincount(ring_local, minlength=m)
     # energy inside the window: of T minus the global part, and of each corner's hat
-    weight = ctx.area[receivers, None]
-    inside = np.stack([np.bincount(local, weights=hats[:, a] * weight[:, 0], minlength=m) for a in range(3)], axis=1)
-    extra = np.stack([np.bincount(local, weights=excess[:, c] * weight[:, 0], minlength=m) for c in range(3)], axis=1)
+    weight, one = ctx.area[receivers], np.ones((len(local), 1))
+    inside = grouped_products(local, hats, one, m, weight)[:, :, 0]
+    extra = grouped_products(local, excess, one, m, weight)[:, :, 0]
     corner_cells = cell[ctx.corners[centres]]
     outside = corner_cells - inside
     budget = np.einsum("sa,sac->sc", corner_cells, w0) - extra

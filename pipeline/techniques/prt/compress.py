@@ -178,7 +178,8 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
     ----------
     q : (3, n, K) float64 or float32
         Scattering integrals at the surface vertices for the directions of `directions`
-        (fastest as a view of vertex-major memory, as `precompute_prt` gives).
+        (a view of vertex-major memory, as `precompute_prt` gives, is read in place; any other
+        layout is copied).
     directions : DirectionSet
     positions : (n, 3) float64
     faces : (m, 3) int64
@@ -193,7 +194,7 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
     """
     check_compress_options(options)
     q = np.asarray(q)
-    if q.dtype != np.float32:  # float32 q (`precompute_prt`'s, exact) is read in float64 pieces, not copied
+    if q.dtype != np.float32:  # float32 q (`precompute_prt`'s, exact) is read as float64, not copied
         q = q.astype(np.float64, copy=False)
     positions = np.asarray(positions, dtype=np.float64)
     n = len(positions)
@@ -202,6 +203,9 @@ def compress_prt(q: np.ndarray, directions: DirectionSet, positions: np.ndarray,
         raise ValueError(f"prt compress: q must be (3, {n}, {k}) (channels, vertices, directions), got {q.shape}")
     if not np.all(np.isfinite(q)):
         raise ValueError("prt compress: q has NaN or Inf values; check the precompute")
+    # The fits read each vertex's (3, K) values as one row (`reference_points._vertex_rows`):
+    # vertex-major memory, as `precompute_prt` gives (no copy); other layouts are copied once here.
+    q = np.moveaxis(np.ascontiguousarray(np.moveaxis(q, 0, 1)), 0, 1)
     if not (np.isfinite(eta) and eta > 0):
         raise ValueError(f"prt compress: eta must be positive and finite, got {eta}")
     order = 0 if options.mode == "lloyd" else options.sh_order

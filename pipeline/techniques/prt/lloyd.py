@@ -3,13 +3,12 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 #: Values the levels are fitted to at most; the rest are only encoded (a 1M sample fixes 256
 #: levels to well within their spacing).
 FIT_SAMPLE = 1_000_000
-#: Values encoded at once (bounds the int64 temporaries of `np.searchsorted` to ~64 MB).
-ENCODE_CHUNK = 8_000_000
 
 
 def lloyd_quantizer(values: np.ndarray, levels: int = 256, weights: np.ndarray | None = None,
@@ -63,30 +62,35 @@ def lloyd_quantizer(values: np.ndarray, levels: int = 256, weights: np.ndarray |
         w = weights.ravel()[pick]
         if not np.any(w > 0):
             raise ValueError("lloyd: all (sampled) weights are zero; give some values a positive weight")
-    order = np.argsort(sample, kind="stable")
-    sample, w = sample[order], w[order]
-    distinct = np.unique(sample[w > 0])
+    if weights is None:  # equal values are interchangeable: no stable order to keep
+        sample = np.sort(sample)
+    else:
+        order = np.argsort(sample, kind="stable")
+        sample, w = sample[order], w[order]
+    weighed = sample[w > 0]  # sorted: its distinct values are where it steps
+    distinct = weighed[np.concatenate([[True], weighed[1:] != weighed[:-1]])]
     if len(distinct) <= levels:
         lut = np.concatenate([distinct, np.full(levels - len(distinct), distinct[-1])])
     else:
         lut = _companded_start(sample, w, levels)
         cum_w = np.concatenate([[0.0], np.cumsum(w)])
         cum_wx = np.concatenate([[0.0], np.cumsum(w * sample)])
-        previous = _distortion(sample, w, lut)
+        total = np.sum(w)
+        terms = np.empty(len(sample))
+        bounds = _cells(sample, lut)
+        previous = _distortion(sample, w, lut, bounds, total, terms)
         for _ in range(iterations):
-            # Cells of the sorted sample between consecutive midpoints; centroids from prefix sums.
-            bounds = np.concatenate([[0], np.searchsorted(sample, 0.5 * (lut[1:] + lut[:-1])), [len(sample)]])
+            # Centroids of the cells from prefix sums.
             mass = cum_w[bounds[1:]] - cum_w[bounds[:-1]]
             moment = cum_wx[bounds[1:]] - cum_wx[bounds[:-1]]
             # An empty cell keeps its level (it cannot lower the error anywhere).
             lut = np.sort(np.where(mass > 0, moment / np.where(mass > 0, mass, 1.0), lut))
-            mse = _distortion(sample, w, lut)
+            bounds = _cells(sample, lut)
+            mse = _distortion(sample, w, lut, bounds, total, terms)
             if previous - mse <= tol * previous:
                 break
             previous = mse
-    codes = np.empty(flat.size, dtype=np.uint8 if levels <= 256 else np.uint16)
-    for s in range(0, flat.size, ENCODE_CHUNK):
-        codes[s:s + ENCODE_CHUNK] = _encode(flat[s:s + ENCODE_CHUNK].astype(np.float64), lut)
+    codes = _encode(flat, lut, np.uint8 if levels <= 256 else np.uint16)
     return lut, codes.reshape(values.shape)
 
 
@@ -98,14 +102,55 @@ def _companded_start(sample: np.ndarray, w: np.ndarray, levels: int) -> np.ndarr
     return np.sort(np.interp((np.arange(levels) + 0.5) / levels * cumulative[-1], cumulative, edges))
 
 
-def _distortion(sample: np.ndarray, w: np.ndarray, lut: np.ndarray) -> float:
-    """Weighted mean squared error of nearest-level quantisation."""
-    return float(np.sum(w * (sample - lut[_encode(sample, lut)]) ** 2) / np.sum(w))
+def _cells(sample: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """(levels + 1,) bounds of each level's cell in the sorted `sample`: values from the midpoint
+    below the level (inclusive) to the one above it, the cells `_encode` assigns (ties to the
+    lower level)."""
+    return np.concatenate([[0], np.searchsorted(sample, 0.5 * (lut[1:] + lut[:-1])), [len(sample)]])
 
 
-def _encode(values: np.ndarray, lut: np.ndarray) -> np.ndarray:
-    """Index of the nearest level (ties to the lower one)."""
-    return np.searchsorted(0.5 * (lut[1:] + lut[:-1]), values, side="right")
+def _distortion(sample: np.ndarray, w: np.ndarray, lut: np.ndarray, bounds: np.ndarray, total: float,
+                terms: np.ndarray) -> float:
+    """Weighted mean squared error of nearest-level quantisation of the sorted `sample` (total
+    weight `total`) in the cells `bounds` (`_cells`): numpy's sum of ``w * (sample -
+    lut[codes]) ** 2``, its terms (into `terms`, like `sample`) from the cells (`_cell_errors`)
+    instead of encoding every value (~3x faster)."""
+    _cell_errors(sample, w, lut, bounds, terms)
+    return float(np.sum(terms) / total)
+
+
+@numba.njit(cache=True, nogil=True)
+def _cell_errors(sample, w, lut, bounds, out):
+    """out[j] = w[j] (sample[j] - lut[c])² for the j of each cell c."""
+    for c in range(len(lut)):
+        for j in range(bounds[c], bounds[c + 1]):
+            d = sample[j] - lut[c]
+            out[j] = w[j] * (d * d)
+
+
+def _encode(values: np.ndarray, lut: np.ndarray, dtype: type) -> np.ndarray:
+    """Index of the nearest level of each of the 1-D `values` (ties to the lower one), as `dtype`:
+    ``np.searchsorted(midpoints, values, side="right")``, compiled (`_upper_bounds`): ~1.4x faster,
+    and no float64 copy or int64 codes of the values."""
+    codes = np.empty(len(values), dtype=dtype)
+    _upper_bounds(values, 0.5 * (lut[1:] + lut[:-1]), codes)
+    return codes
+
+
+@numba.njit(cache=True, nogil=True)
+def _upper_bounds(values, bounds, out):
+    """out[p] = how many of the sorted `bounds` are <= values[p] (read as float64)."""
+    for p in range(len(values)):
+        v = np.float64(values[p])
+        low, size = 0, len(bounds)
+        while size > 0:
+            half = size >> 1
+            if bounds[low + half] <= v:
+                low += half + 1
+                size -= half + 1
+            else:
+                size = half
+        out[p] = low
 
 
 def snr_db(values: np.ndarray, decoded: np.ndarray) -> float:

@@ -10,6 +10,7 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -27,10 +28,9 @@ REFINE_ROUNDS = 4
 #: Defaults of the weight fits: ridge towards the prior weights relative to the normal matrix's
 #: mean diagonal, and the clip of w_0, w_1 (see `least_squares_weights`).
 REGULARISATION, LIMIT = 1e-3, 4.0
-#: Signal values gathered at once for a weight fit's inner products (rows × 3 × K, 32 MB a copy).
-FIT_ELEMENTS = 1 << 22
-#: Threads `_dots` sums its chunks on.
+#: Threads `_dots` sums on, and the fewest pairs worth a thread of their own.
 THREADS = min(4, os.cpu_count() or 1)
+DOT_PAIRS = 4096
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,15 +150,14 @@ def attach_vertices(positions: np.ndarray, faces: np.ndarray, simple: Simplified
 
 def _nearest(positions: np.ndarray, corners: np.ndarray, pair_vertex: np.ndarray, pair_face: np.ndarray,
              n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per vertex, the candidate triangle nearest to it.
+    """Per vertex, the candidate triangle nearest to it (`pair_vertex` sorted).
 
     Returns (n,) triangle, (n, 3) closest-point barycentrics, (n,) distance (inf without
     candidates) and (n,) whether that closest point is inside the triangle (not on an edge).
     """
     bary, dist, inside = closest_point_barycentrics(positions[pair_vertex], corners[pair_face])
     # Nearest first; among equally near (a reference point on all its triangles), the most inside.
-    order = np.lexsort((-bary.min(axis=1), dist, pair_vertex))
-    first = order[np.concatenate([[True], np.diff(pair_vertex[order]) != 0])] if len(order) else order
+    first = _run_minima(pair_vertex, dist, -bary.min(axis=1))
     vertex_triangle = np.zeros(n, dtype=np.int64)
     weights = np.full((n, 3), 1.0 / 3.0)
     distance = np.full(n, np.inf)
@@ -186,38 +185,69 @@ def closest_point_barycentrics(p: np.ndarray, tri: np.ndarray) -> tuple[np.ndarr
     inside : (m,) bool
         The projection onto the triangle's plane lies inside (barycentrics >= -`INSIDE_EPS`).
     """
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    e0, e1, rel = b - a, c - a, p - a
-    d00, d01, d11 = (np.einsum("ij,ij->i", x, y) for x, y in ((e0, e0), (e0, e1), (e1, e1)))
-    d20, d21 = np.einsum("ij,ij->i", rel, e0), np.einsum("ij,ij->i", rel, e1)
-    den = d00 * d11 - d01 * d01
-    ok = den > 1e-12 * d00 * d11  # not degenerate (relative to the edge lengths)
-    safe = np.where(ok, den, 1.0)
-    v = (d11 * d20 - d01 * d21) / safe
-    w = (d00 * d21 - d01 * d20) / safe
-    plane = np.column_stack([1.0 - v - w, v, w])
-    inside = ok & (plane.min(axis=1) >= -INSIDE_EPS)
+    p = np.ascontiguousarray(p, dtype=np.float64)
+    tri = np.ascontiguousarray(tri, dtype=np.float64)
+    bary, distance, inside = np.empty((len(p), 3)), np.empty(len(p)), np.empty(len(p), dtype=bool)
+    _closest_points(p, tri, bary, distance, inside)
+    return bary, distance, inside
 
-    # Outside (or degenerate): the nearest point over the three edges.
-    best_d = np.full(len(p), np.inf)
-    best = np.zeros((len(p), 3))
-    for i, j in ((0, 1), (1, 2), (2, 0)):
-        edge = tri[:, j] - tri[:, i]
-        length2 = np.einsum("ij,ij->i", edge, edge)
-        t = np.clip(np.einsum("ij,ij->i", p - tri[:, i], edge) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
-        d = np.linalg.norm(p - tri[:, i] - t[:, None] * edge, axis=1)
-        closer = d < best_d
-        best_d = np.where(closer, d, best_d)
-        row = np.zeros((len(p), 3))
-        row[:, i], row[:, j] = 1.0 - t, t
-        best[closer] = row[closer]
-    inner = np.clip(plane, 0.0, None)
-    inner /= np.where(inner.sum(axis=1) > 0, inner.sum(axis=1), 1.0)[:, None]
-    bary = np.where(inside[:, None], inner, best)
-    normal = np.cross(e0, e1)
-    normal_length = np.sqrt(np.where(ok, np.einsum("ij,ij->i", normal, normal), 1.0))
-    plane_d = np.abs(np.einsum("ij,ij->i", rel, normal)) / normal_length
-    return bary, np.where(inside, plane_d, best_d), inside
+
+@numba.njit(cache=True, nogil=True)
+def _closest_points(p, tri, bary, distance, inside):
+    """`closest_point_barycentrics` point by point, its numpy form's values exactly (that form is
+    tests/techniques/prt/test_reference_points.py's oracle; ~10x slower): the projection onto the
+    plane when it lies inside (not degenerate: den > 1e-12 d00 d11), else the nearest point over
+    the three edges (the first of equally near ones)."""
+    for m in range(len(p)):
+        ax, ay, az = tri[m, 0, 0], tri[m, 0, 1], tri[m, 0, 2]
+        e0x, e0y, e0z = tri[m, 1, 0] - ax, tri[m, 1, 1] - ay, tri[m, 1, 2] - az
+        e1x, e1y, e1z = tri[m, 2, 0] - ax, tri[m, 2, 1] - ay, tri[m, 2, 2] - az
+        rx, ry, rz = p[m, 0] - ax, p[m, 1] - ay, p[m, 2] - az
+        d00 = _dot3(e0x, e0y, e0z, e0x, e0y, e0z)
+        d01 = _dot3(e0x, e0y, e0z, e1x, e1y, e1z)
+        d11 = _dot3(e1x, e1y, e1z, e1x, e1y, e1z)
+        d20 = _dot3(rx, ry, rz, e0x, e0y, e0z)
+        d21 = _dot3(rx, ry, rz, e1x, e1y, e1z)
+        den = d00 * d11 - d01 * d01
+        ok = den > 1e-12 * d00 * d11
+        safe = den if ok else 1.0
+        v = (d11 * d20 - d01 * d21) / safe
+        w = (d00 * d21 - d01 * d20) / safe
+        u = 1.0 - v - w
+        inside[m] = ok and min(u, min(v, w)) >= -INSIDE_EPS
+        if inside[m]:
+            u, v, w = max(u, 0.0), max(v, 0.0), max(w, 0.0)
+            total = _sum3(u, v, w)
+            total = total if total > 0 else 1.0
+            bary[m, 0], bary[m, 1], bary[m, 2] = u / total, v / total, w / total
+            nx, ny, nz = e0y * e1z - e0z * e1y, e0z * e1x - e0x * e1z, e0x * e1y - e0y * e1x
+            distance[m] = abs(_dot3(rx, ry, rz, nx, ny, nz)) / np.sqrt(_dot3(nx, ny, nz, nx, ny, nz))
+            continue
+        distance[m] = np.inf
+        bary[m] = 0.0
+        for i in range(3):
+            j = (i + 1) % 3
+            ex, ey, ez = tri[m, j, 0] - tri[m, i, 0], tri[m, j, 1] - tri[m, i, 1], tri[m, j, 2] - tri[m, i, 2]
+            sx, sy, sz = p[m, 0] - tri[m, i, 0], p[m, 1] - tri[m, i, 1], p[m, 2] - tri[m, i, 2]
+            length2 = _dot3(ex, ey, ez, ex, ey, ez)
+            t = min(max(_dot3(sx, sy, sz, ex, ey, ez) / (length2 if length2 > 0 else 1.0), 0.0), 1.0)
+            dx, dy, dz = sx - t * ex, sy - t * ey, sz - t * ez
+            d = np.sqrt(_sum3(dx * dx, dy * dy, dz * dz))
+            if d < distance[m]:
+                distance[m] = d
+                bary[m, i], bary[m, j], bary[m, 3 - i - j] = 1.0 - t, t, 0.0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _dot3(x0, x1, x2, y0, y1, y2):
+    """A 3-vector dot product as numpy's einsum sums it (lanes of even and odd elements)."""
+    return (x0 * y0 + x2 * y2) + x1 * y1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sum3(x0, x1, x2):
+    """Three values as numpy's sum along a row sums them (in order)."""
+    return (x0 + x1) + x2
 
 
 def least_squares_weights(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints,
@@ -290,17 +320,10 @@ def best_fit_triangles(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints,
     incident = np.argsort(tri.ravel(), kind="stable")
     starts = np.searchsorted(tri.ravel()[incident], np.arange(len(refs.ref_vertices) + 1))
     # (vertex, candidate) pairs: the triangles around each corner of the geometric triangle.
-    corner_of = tri[refs.vertex_triangle].ravel()  # (3n,)
-    per = np.diff(starts)[corner_of]
-    owner = np.repeat(np.repeat(np.arange(n), 3), per)
-    local = np.arange(per.sum()) - np.repeat(np.cumsum(per) - per, per)
-    candidate = incident[np.repeat(starts[corner_of], per) + local] // 3
-    key = owner * len(tri) + candidate
-    pairs = key[unique_keys(key, n * len(tri))[0]]  # sorted by vertex, duplicates gone
-    owner, candidate = pairs // len(tri), pairs % len(tri)
+    corners = tri[refs.vertex_triangle]
     own = _is_reference(refs)
-    keep = ~own[owner]
-    owner, candidate = owner[keep], candidate[keep]
+    owner, candidate = _candidate_pairs(corners, starts, incident // 3, own,
+                                        int(np.diff(starts)[corners].sum()))
     geometric = candidate == refs.vertex_triangle[owner]
     prior = np.where(geometric[:, None], refs.weights[owner, :2], 1.0 / 3.0)
 
@@ -312,8 +335,7 @@ def best_fit_triangles(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints,
         v, t = owner[s:s + chunk], candidate[s:s + chunk]
         w01, misfit = _fit(q, q_ref, v, tri, t, prior[s:s + chunk], regularisation, limit)
         # Per vertex, the chunk's best pair (pairs are sorted by vertex, so minima are per run).
-        order = np.lexsort((misfit, v))
-        first = order[np.concatenate([[True], np.diff(v[order]) != 0])]
+        first = _run_minima(v, misfit, np.zeros(len(v)))
         win = first[misfit[first] < best[v[first]]]
         best[v[win]] = misfit[win]
         vertex_triangle[v[win]] = t[win]
@@ -409,8 +431,8 @@ def _split_worst(positions: np.ndarray, refs: ReferencePoints, misfit: np.ndarra
 
 
 def _check_signals(q: np.ndarray, q_ref: np.ndarray, refs: ReferencePoints) -> tuple[np.ndarray, np.ndarray]:
-    """q as given when float32 (`_dots` reads it in float64 chunks; a float64 copy would double
-    the stage's largest array), else as float64; q_ref as float64."""
+    """q as given when float32 (`_dots` reads it as float64; a float64 copy would double the
+    stage's largest array), else as float64; q_ref as float64."""
     q, q_ref = _signal(q), np.asarray(q_ref, dtype=np.float64)
     n, r = len(refs.vertex_triangle), len(refs.ref_vertices)
     if q.ndim != 3 or q.shape[:2] != (3, n) or q_ref.shape != (3, r, q.shape[2]):
@@ -435,7 +457,7 @@ def _fit(q: np.ndarray, q_ref: np.ndarray, vertices: np.ndarray, triangles: np.n
          prior: np.ndarray, regularisation: float, limit: float) -> tuple[np.ndarray, np.ndarray]:
     """Regularised least-squares (w_0, w_1) of each vertex on the three reference points of a triangle.
 
-    Rows pair `vertices` (m,) with `triangles[which]` (m,) of (T, 3) reference indices. The normal
+    Rows pair `vertices` (m,), sorted, with `triangles[which]` (m,) of (T, 3) reference indices. The normal
     equations come from inner products, each computed once: ⟨q_v, r⟩ per distinct (vertex,
     reference) pair (a vertex's ~15 candidate triangles share ~10 references), ⟨r, r'⟩ per
     distinct triangle, |q_v|² per vertex: ~2.7× faster than forming the residuals row by row
@@ -443,21 +465,24 @@ def _fit(q: np.ndarray, q_ref: np.ndarray, vertices: np.ndarray, triangles: np.n
 
     Returns (m, 2) weights and (m,) misfit Σ_c Σ_j residual² (unregularised).
     """
-    m, r = len(vertices), q_ref.shape[1]
+    m = len(vertices)
     rows_q = _vertex_rows(q)
-    rows_ref = np.ascontiguousarray(_vertex_rows(q_ref), dtype=np.float64)
-    corners = triangles[which]
-    key = (vertices[:, None].astype(np.int64) * r + corners).ravel()
-    first, back = unique_keys(key, (int(vertices.max(initial=0)) + 1) * r)
-    pair = key[first]
-    qr = _dots(rows_q, pair // r, rows_ref, pair % r)[back].reshape(m, 3)  # ⟨q_v, r_k⟩
+    rows_ref = _vertex_rows(q_ref)
+    if rows_ref.dtype == np.float64 and np.array_equal(rows_ref.astype(np.float32), rows_ref):
+        rows_ref = rows_ref.astype(np.float32)  # the same values (RGB tables' levels) in half the bytes
+    vertices = np.asarray(vertices, dtype=np.int64)
+    if np.any(vertices[1:] < vertices[:-1]):
+        raise ValueError("reference points: the fit's rows must be sorted by vertex")
+    corners = np.ascontiguousarray(triangles[which], dtype=np.int64)
+    pair_vertex, pair_ref, back = _vertex_references(vertices, corners)
+    qr = _dots(rows_q, pair_vertex, rows_ref, pair_ref)[back].reshape(m, 3)  # ⟨q_v, r_k⟩
     first, tri_back = unique_keys(which, len(triangles))
     t = triangles[which[first]]
     r00, r01, r02, r11, r12, r22 = (_dots(rows_ref, t[:, k], rows_ref, t[:, l])[tri_back]
                                     for k, l in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
-    first, vert_back = unique_keys(vertices, int(vertices.max(initial=0)) + 1)
-    vert = vertices[first]
-    qq = _dots(rows_q, vert, rows_q, vert)[vert_back]
+    run = np.concatenate([[True], vertices[1:] != vertices[:-1]])
+    vert = vertices[run]
+    qq = np.repeat(_dots(rows_q, vert, rows_q, vert), np.diff(np.append(np.flatnonzero(run), m)))
     # With a_k = r_k - r_2 and target q - r_2: g = ⟨a_k, a_l⟩, b = ⟨a_k, target⟩, rest = |target|².
     g = np.empty((m, 2, 2))
     g[:, 0, 0] = r00 - 2.0 * r02 + r22
@@ -477,33 +502,179 @@ def _fit(q: np.ndarray, q_ref: np.ndarray, vertices: np.ndarray, triangles: np.n
     return np.where(better[:, None], w01, prior), np.where(better, fitted, fallback)
 
 
+@numba.njit(cache=True, nogil=True)
+def _candidate_pairs(corners, starts, around, skip, bound):
+    """(vertex, triangle) pairs sorted by vertex, then triangle, without repeats: for each vertex
+    not in `skip`, the triangles around its triangle's `corners` (n, 3) (``around[starts[c]:
+    starts[c + 1]]`` around corner c); `bound` is the sum of those counts. The triangles of a
+    vertex are sorted among themselves (~15), not all keys at once (~6x faster)."""
+    owner = np.empty(bound, dtype=np.int64)
+    candidate = np.empty(bound, dtype=np.int64)
+    order_buffer = np.empty(bound, dtype=np.int64)
+    count = 0
+    for v in range(len(corners)):
+        if skip[v]:
+            continue
+        first = count
+        for c in corners[v]:
+            for e in range(starts[c], starts[c + 1]):
+                candidate[count] = around[e]
+                count += 1
+        order = _sorted_indices(candidate, first, count, order_buffer)
+        end, count = count, first
+        for e in range(end - first):
+            value = candidate[order[e]]
+            if e == 0 or value != owner[count - 1]:
+                owner[count] = value  # the triangles first, their vertex below
+                count += 1
+        candidate[first:count] = owner[first:count]
+        owner[first:count] = v
+    return owner[:count], candidate[:count]
+
+
+@numba.njit(cache=True, nogil=True)
+def _vertex_references(vertices, corners):
+    """The distinct (vertex, reference) pairs of `_fit`'s rows, sorted, and each row corner's
+    place among them ((m · 3,)): ``unique_keys`` of the keys vertex · R + corner, found per run
+    of rows of one vertex (`vertices` sorted) among its ~45 corners, not among all keys at once."""
+    m = len(vertices)
+    keys = corners.ravel()
+    pair_vertex = np.empty(3 * m, dtype=np.int64)
+    pair_ref = np.empty(3 * m, dtype=np.int64)
+    back = np.empty(3 * m, dtype=np.int64)
+    order_buffer = np.empty(3 * m, dtype=np.int64)
+    count = 0
+    start = 0
+    while start < m:
+        end = start + 1
+        while end < m and vertices[end] == vertices[start]:
+            end += 1
+        order = _sorted_indices(keys, 3 * start, 3 * end, order_buffer)
+        for e in range(len(order)):
+            if e == 0 or keys[order[e]] != keys[order[e - 1]]:
+                pair_vertex[count] = vertices[start]
+                pair_ref[count] = keys[order[e]]
+                count += 1
+            back[order[e]] = count - 1
+        start = end
+    return pair_vertex[:count], pair_ref[:count], back
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sorted_indices(values, lo, hi, buffer):
+    """The indices lo..hi - 1 ordered by `values` (insertion sort into `buffer[lo:hi]`: the
+    runs are short, ~15 to 45, and a sort call per run would allocate)."""
+    order = buffer[lo:hi]
+    for e in range(hi - lo):
+        k = e
+        while k > 0 and values[order[k - 1]] > values[lo + e]:
+            order[k] = order[k - 1]
+            k -= 1
+        order[k] = lo + e
+    return order
+
+
+@numba.njit(cache=True, nogil=True)
+def _run_minima(owner, primary, secondary):
+    """Per run of equal `owner` (sorted), the first index whose (primary, secondary) is least, NaN
+    above every number: the first of each run in ``np.lexsort((secondary, primary, owner))``,
+    without sorting (~20x faster)."""
+    out = np.empty(len(owner), dtype=np.int64)
+    count = 0
+    for p in range(len(owner)):
+        if p == 0 or owner[p] != owner[p - 1]:
+            out[count] = p
+            count += 1
+            continue
+        b = out[count - 1]
+        if _less(primary[p], primary[b]) or (not _less(primary[b], primary[p]) and _less(secondary[p], secondary[b])):
+            out[count - 1] = p
+    return out[:count]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _less(x, y):
+    """x before y in numpy's sort order (NaN last)."""
+    return x < y or (y != y and x == x)
+
+
 def _vertex_rows(q: np.ndarray) -> np.ndarray:
-    """(n, 3, K) view of a (3, n, K) signal: a C-contiguous one when q is a view of vertex-major
-    memory (`precompute_prt`'s q), whose rows `_dots` then gathers as single runs."""
-    return np.moveaxis(q, 0, 1)
+    """(n, 3·K) rows of a (3, n, K) signal, in its own dtype: a view when q is a view of
+    vertex-major memory (`precompute_prt`'s q), else a copy (of a float64 (3, n, K) array, as
+    tests give)."""
+    return np.moveaxis(q, 0, 1).reshape(q.shape[1], -1)
 
 
 def _dots(a: np.ndarray, i: np.ndarray, b: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """(len(i),) Σ_c Σ_k a[i, c, k] b[j, c, k] in float64, for (n, 3, K) rows (`_vertex_rows`) of
-    float32 or float64, in chunks of rows (bounds the gathered copies).
+    """(len(i),) Σ_e a[i, e] b[j, e] in float64, for (n, 3·K) rows (`_vertex_rows`) of float32 or
+    float64, summed by `_dot_rows` on `THREADS` threads (each writes its own slice).
 
-    Float32 inputs are upcast per chunk: their products are exact in float64, so the sums are
+    Float32 inputs are read as float64: their products are exact in float64, so the sums are
     the float64 sums of the same values (the normal equations cancel heavily: `_fit`'s misfit).
     """
+    a, b = np.ascontiguousarray(a), np.ascontiguousarray(b)
+    i, j = np.asarray(i, dtype=np.int64), np.asarray(j, dtype=np.int64)
     out = np.empty(len(i))
-    rows = max(1, FIT_ELEMENTS // (a.shape[1] * a.shape[2]))
-
-    def chunk(s: int) -> None:
-        x = a[i[s:s + rows]].astype(np.float64, copy=False)
-        y = b[j[s:s + rows]].astype(np.float64, copy=False)
-        out[s:s + rows] = np.einsum("ick,ick->i", x, y)
-
-    # the gathers and sums release the GIL: 1.85x faster on 2 cores, every sum the same
-    starts = range(0, len(i), rows)
-    if len(starts) > 1 and THREADS > 1:
+    step = max(DOT_PAIRS, -(-len(i) // THREADS))
+    starts = range(0, len(i), step)
+    if len(starts) > 1:
         with ThreadPoolExecutor(THREADS) as pool:
-            list(pool.map(chunk, starts))
+            list(pool.map(lambda s: _dot_rows(a, i[s:s + step], b, j[s:s + step], out[s:s + step]), starts))
     else:
-        for s in starts:
-            chunk(s)
+        _dot_rows(a, i, b, j, out)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _dot_rows(a, i, b, j, out):
+    """out[p] = Σ_e a[i[p], e] b[j[p], e] in float64, summed in the order of numpy's einsum on
+    contiguous float64 rows (`np.einsum("ick,ick->i", ...)`, which `_dots` gathered and summed
+    before: the same sums, bit for bit, tests/techniques/prt/test_reference_points.py), without
+    its gathered float64 copies of every row: two lanes (even and odd e), each adding four
+    products per step of eight (`_lane_step`), then the tail two at a time, then lane 0 + lane 1.
+    Four pairs at a time: one pair's two chains of dependent adds leave the adder idle."""
+    m = a.shape[1]
+    whole = m - m % 8
+    p = 0
+    while p + 4 <= len(i):
+        x0, x1, x2, x3 = a[i[p]], a[i[p + 1]], a[i[p + 2]], a[i[p + 3]]
+        y0, y1, y2, y3 = b[j[p]], b[j[p + 1]], b[j[p + 2]], b[j[p + 3]]
+        e0 = e1 = e2 = e3 = o0 = o1 = o2 = o3 = 0.0
+        for e in range(0, whole, 8):
+            e0 = _lane_step(x0, y0, e, e0)
+            o0 = _lane_step(x0, y0, e + 1, o0)
+            e1 = _lane_step(x1, y1, e, e1)
+            o1 = _lane_step(x1, y1, e + 1, o1)
+            e2 = _lane_step(x2, y2, e, e2)
+            o2 = _lane_step(x2, y2, e + 1, o2)
+            e3 = _lane_step(x3, y3, e, e3)
+            o3 = _lane_step(x3, y3, e + 1, o3)
+        out[p] = _lane_tail(x0, y0, whole, e0, o0)
+        out[p + 1] = _lane_tail(x1, y1, whole, e1, o1)
+        out[p + 2] = _lane_tail(x2, y2, whole, e2, o2)
+        out[p + 3] = _lane_tail(x3, y3, whole, e3, o3)
+        p += 4
+    for p in range(p, len(i)):
+        x, y = a[i[p]], b[j[p]]
+        even = odd = 0.0
+        for e in range(0, whole, 8):
+            even = _lane_step(x, y, e, even)
+            odd = _lane_step(x, y, e + 1, odd)
+        out[p] = _lane_tail(x, y, whole, even, odd)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _lane_step(x, y, e, acc):
+    """One lane's step of `_dot_rows`: elements e, e + 2, e + 4, e + 6 added last first."""
+    return np.float64(x[e]) * y[e] + (np.float64(x[e + 2]) * y[e + 2] + (
+        np.float64(x[e + 4]) * y[e + 4] + (np.float64(x[e + 6]) * y[e + 6] + acc)))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _lane_tail(x, y, whole, even, odd):
+    """The elements from `whole` on, two at a time into the lanes, then their sum."""
+    for e in range(whole, len(x), 2):
+        even = np.float64(x[e]) * y[e] + even
+        if e + 1 < len(x):
+            odd = np.float64(x[e + 1]) * y[e + 1] + odd
+    return even + odd

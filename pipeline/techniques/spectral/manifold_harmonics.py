@@ -27,14 +27,15 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from sssbake.pipeline.techniques.spectral.laplacian import Laplacian
+from sssbake.pipeline.techniques.spectral.shifted_factor import ShiftedFactor
 
 #: Meshes up to this many vertices are solved densely.
 DENSE = 1500
-#: Most new eigenpairs per shift-invert solve (bands beat one solve for hundreds of pairs:
-#: benchmarks/README.md#spectral-eigensolve).
-BAND = 100
+#: Most new eigenpairs per shift-invert solve (bands beat one solve for hundreds of pairs, and
+#: with CHOLMOD's cheaper solves narrow bands beat wide ones: benchmarks/README.md#spectral-eigensolve).
+BAND = 30
 #: Share of a band spent overlapping the previous one.
-OVERLAP = 0.15
+OVERLAP = 0.08
 #: Eigenvalues closer than this (relative) count as one multiplet.
 MULTIPLET = 1e-6
 #: Relative accuracy of the eigenvalues (ARPACK's default, machine precision, costs more time
@@ -90,38 +91,37 @@ def manifold_harmonics(laplacian: Laplacian, count: int) -> Harmonics:
 def _banded(a: sp.csc_matrix, count: int, area: float) -> tuple[np.ndarray, np.ndarray, int]:
     """The `count` lowest eigenpairs of symmetric positive semi-definite `a`, band by band."""
     n = a.shape[0]
-    identity = sp.identity(n, format="csc")
-    values, vectors = np.zeros(0), np.zeros((n, 0))
+    factor = ShiftedFactor(a)
     shift = -1e-3 / area  # just below 0: A - σI is positive definite
     # as few bands as BAND allows, each a share of `count` plus its overlap and a margin
     band = min(n - 2, int(np.ceil(count / np.ceil(count / BAND) * (1.0 + OVERLAP))) + 8)
+    # the pairs kept so far are the first `kept` of these (a band adds at most `band` past `count`)
+    values, vectors, kept = np.zeros(count + band), np.zeros((n, count + band)), 0
     solves = 0
-    while len(values) < count:
-        lu = sla.splu((a - shift * identity).tocsc(), permc_spec="COLAMD")
-        op = sla.LinearOperator(a.shape, matvec=lu.solve, dtype=np.float64)
+    while kept < count:
+        op = sla.LinearOperator(a.shape, matvec=factor.solver(shift), dtype=np.float64)
         lam, psi = sla.eigsh(a, k=band, sigma=shift, which="LM", OPinv=op, tol=TOLERANCE)
         solves += 1
         order = np.argsort(lam)
         lam, psi = lam[order], psi[:, order]
-        if len(values):
-            overlap = values[values >= lam[0]]
+        if kept:
+            overlap = values[:kept][values[:kept] >= lam[0]]
             gaps = np.diff(overlap)
-            if not np.any(gaps > MULTIPLET * max(float(values[-1]), 1e-300)):
+            if not np.any(gaps > MULTIPLET * max(float(values[kept - 1]), 1e-300)):
                 # the band does not reach back over two distinct eigenvalues of the last one
                 # (either band's edge may hold part of a multiplet only): shift down, retry
-                shift = 0.5 * (shift + values[-1])
+                shift = 0.5 * (shift + values[kept - 1])
                 continue
             # join at the widest gap of the overlap: both sides of it are whole multiplets
             gap = int(np.argmax(gaps))
             cut = 0.5 * (overlap[gap] + overlap[gap + 1])
-            kept = values <= cut
-            values, vectors = values[kept], vectors[:, kept]
+            kept = int(np.searchsorted(values[:kept], cut, side="right"))
             new = lam > cut
             lam, psi = lam[new], psi[:, new]
-        values = np.r_[values, lam]
-        vectors = np.c_[vectors, psi]
+        values[kept:kept + len(lam)], vectors[:, kept:kept + len(lam)] = lam, psi
+        kept += len(lam)
         # the next shift from the density of eigenvalues this band measured (Weyl: about even
         # spacing), so that the next band reaches OVERLAP of a band back into this one
-        spacing = (values[-1] - values[max(0, len(values) - band)]) / max(min(band, len(values)) - 1, 1)
-        shift = values[-1] + (0.5 - OVERLAP) * band * spacing
+        spacing = (values[kept - 1] - values[max(0, kept - band)]) / max(min(band, kept) - 1, 1)
+        shift = values[kept - 1] + (0.5 - OVERLAP) * band * spacing
     return values[:count], vectors[:, :count], solves

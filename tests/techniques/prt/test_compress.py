@@ -359,3 +359,14 @@ def test_compression_error_in_chunks_is_the_whole_arrays(torus):
     assert largest == float(np.abs(error).max())
     part = decode_at_directions(prt, slice(100, 300))
     np.testing.assert_array_equal(part, decode_at_directions(prt)[:, 100:300])
+
+
+def test_compiled_blend_is_the_numpy_sum():
+    # `blend` is compiled; the numpy definition it replaced, value for value
+    rng = np.random.default_rng(6)
+    table = rng.standard_normal((40, 13))
+    w = rng.standard_normal((500, 3))
+    corners = rng.integers(0, 40, (500, 3)).astype(np.int32)
+    expected = sum(w[:, k:k + 1] * table[corners[:, k]] for k in range(3))
+    assert np.array_equal(blend(w, table, corners), expected)
+    assert blend(w[:0], table, corners[:0]).shape == (0, 13)

@@ -56,11 +56,10 @@ def test_large_inputs_are_subsampled_for_the_fit_and_fully_encoded(monkeypatch):
     import sssbake.pipeline.techniques.prt.lloyd as lloyd
 
     monkeypatch.setattr(lloyd, "FIT_SAMPLE", 5_000)
-    monkeypatch.setattr(lloyd, "ENCODE_CHUNK", 7_000)
     x = np.random.default_rng(5).normal(size=(40_000,)).astype(np.float32)
     lut, codes = lloyd_quantizer(x, levels=64)
     nearest = np.searchsorted(0.5 * (lut[1:] + lut[:-1]), x.astype(np.float64), side="right")
-    np.testing.assert_array_equal(codes, nearest)  # every value, across chunks, to its nearest level
+    np.testing.assert_array_equal(codes, nearest)  # every value to its nearest level
     assert snr_db(x, lut[codes]) > 25.0  # 6 bits: ~6 dB per bit even from a 5k sample
 
 
@@ -93,3 +92,23 @@ def test_bad_input_is_refused():
         lloyd_quantizer(np.ones(3), weights=np.array([1.0, -1.0, 1.0]))
     with pytest.raises(ValueError, match="weights are zero"):
         lloyd_quantizer(np.ones(3), weights=np.zeros(3))
+
+
+def test_compiled_encoding_and_distortion_are_the_numpy_definitions():
+    # `_encode` and `_distortion` are compiled; the numpy forms they replaced, value for value
+    import sssbake.pipeline.techniques.prt.lloyd as lloyd
+
+    rng = np.random.default_rng(8)
+    sample = np.sort(np.round(rng.lognormal(size=20_000), 2))  # ties on the midpoints too
+    w = rng.random(sample.shape)
+    for levels in (2, 7, 256, 1000):
+        lut = np.sort(rng.choice(sample, levels))
+        mid = 0.5 * (lut[1:] + lut[:-1])
+        nearest = np.searchsorted(mid, sample, side="right")
+        for values in (sample, sample.astype(np.float32), (sample * 10).astype(np.int64)):
+            expected = np.searchsorted(mid, values.astype(np.float64), side="right")
+            np.testing.assert_array_equal(lloyd._encode(values, lut, np.uint16), expected)
+        bounds = lloyd._cells(sample, lut)
+        terms = np.empty(len(sample))
+        assert lloyd._distortion(sample, w, lut, bounds, np.sum(w), terms) == float(
+            np.sum(w * (sample - lut[nearest]) ** 2) / np.sum(w))

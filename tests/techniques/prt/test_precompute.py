@@ -144,3 +144,19 @@ def test_back_gain_scales_exactly_the_light_from_behind_each_vertex():
     ref_gained = reference_scattering(s, 1.0, replace(SHORT, back_gain=gain), light)
     np.testing.assert_allclose(ref_gained, ref * np.where(behind[:, 3][None], np.asarray(gain)[:, None], 1.0),
                                rtol=1e-12)
+
+
+def test_compiled_signal_equals_the_numpy_fresnel():
+    # `precompute._transmitted` against its numpy definition, bit for bit: lights in front of,
+    # grazing and behind the vertices, seen and blocked.
+    from sssbake.pipeline.techniques.prt.precompute import irradiance_signal
+
+    rng = np.random.default_rng(3)
+    normals = rng.normal(size=(500, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    directions = np.r_[fibonacci_sphere(40), normals[:3], -normals[3:5]]
+    visible = rng.random((500, len(directions))) < 0.7
+    for eta in (1.0, 1.3, 2.4):
+        cos = np.clip(normals @ directions.T, 0.0, None)
+        expected = fresnel_transmittance(eta, cos) * cos * visible / np.pi
+        np.testing.assert_array_equal(irradiance_signal(normals, directions, visible, eta), expected)

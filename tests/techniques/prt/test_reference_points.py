@@ -8,6 +8,7 @@ from sssbake.pipeline.core.directions import fibonacci_sphere
 from sssbake.pipeline.core.surface import area_weighted_normals
 from sssbake.pipeline.mesh.simplify import Simplified
 from sssbake.pipeline.techniques.prt.reference_points import (
+    INSIDE_EPS,
     attach_vertices,
     best_fit_triangles,
     closest_point_barycentrics,
@@ -233,17 +234,111 @@ def test_fit_inner_products_of_float32_signals_are_float64_sums():
 
 
 def test_fit_inner_products_on_threads_equal_the_serial_sums(monkeypatch):
-    # chunks summed on threads write their own slices: the same sums, bit for bit
+    # blocks summed on threads write their own slices: the same sums, bit for bit
     from sssbake.pipeline.techniques.prt import reference_points as rp
 
     rng = np.random.default_rng(4)
-    rows = np.ascontiguousarray(rp._vertex_rows(rng.random((3, 400, 20)).astype(np.float32)))
+    rows = rp._vertex_rows(rng.random((3, 400, 20)).astype(np.float32))
     i, j = rng.integers(0, 400, 5000), rng.integers(0, 400, 5000)
-    monkeypatch.setattr(rp, "FIT_ELEMENTS", 60 * 37)  # 37 rows a chunk: 136 chunks
+    monkeypatch.setattr(rp, "DOT_PAIRS", 37)
     monkeypatch.setattr(rp, "THREADS", 1)
     serial = rp._dots(rows, i, rows, j)
     monkeypatch.setattr(rp, "THREADS", 3)
     threaded = rp._dots(rows, i, rows, j)
     assert np.array_equal(serial, threaded)
-    exact = np.einsum("ick,ick->i", rows[i].astype(np.float64), rows[j].astype(np.float64))
+    exact = np.einsum("ik,ik->i", rows[i].astype(np.float64), rows[j].astype(np.float64))
     np.testing.assert_allclose(threaded, exact, rtol=1e-13)
+
+
+@pytest.mark.parametrize("k", [1, 3, 7, 8, 13, 200])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_compiled_inner_products_are_numpys_sums(k, dtype):
+    # `_dot_rows` sums in the order of numpy's einsum on gathered float64 rows (what `_dots`
+    # computed before it), so every fit is unchanged; any order would meet rtol=1e-13, and
+    # equality holds where numpy's einsum sums two lanes of four products a step (SSE2 builds)
+    from sssbake.pipeline.techniques.prt.reference_points import _dots
+
+    rng = np.random.default_rng(k)
+    a = rng.standard_normal((50, 3 * k)).astype(dtype)
+    b = rng.standard_normal((40, 3 * k))
+    for count in (0, 1, 3, 4, 5, 1001):
+        i, j = rng.integers(0, 50, count), rng.integers(0, 40, count)
+        numpy_sums = np.einsum("ick,ick->i", a[i].reshape(count, 3, k).astype(np.float64), b[j].reshape(count, 3, k))
+        dots = _dots(a, i, b, j)
+        np.testing.assert_allclose(dots, numpy_sums, rtol=1e-13, atol=1e-300)
+        assert np.array_equal(dots, numpy_sums) or not _einsum_sums_in_two_lanes()
+
+
+def _einsum_sums_in_two_lanes() -> bool:
+    """Whether numpy's einsum sums a contiguous float64 row as two lanes of four products a
+    step (the order `_dot_rows` follows): on a row whose sum depends on the order, it does."""
+    x = np.array([1e16, 0.0, 1.0, 0.0, -1e16, 0.0, 1.0, 0.0])
+    # two lanes: 1e16 + (1 + (-1e16 + 1)) = 0; in order: 1; four lanes: (1e16 - 1e16) + (1 + 1) = 2
+    return float(np.einsum("i,i->", x, np.ones(8))) == 0.0
+
+
+def test_run_minima_are_the_first_of_each_run_in_lexsort_order():
+    # `_run_minima` replaces np.lexsort's per-run first (ties, NaN and -0.0 included)
+    from sssbake.pipeline.techniques.prt.reference_points import _run_minima
+
+    rng = np.random.default_rng(5)
+    owner = np.sort(rng.integers(0, 300, 3000))
+    primary = rng.integers(0, 4, 3000).astype(np.float64)
+    secondary = rng.integers(0, 3, 3000).astype(np.float64)
+    primary[rng.random(3000) < 0.1] = np.nan
+    secondary[rng.random(3000) < 0.1] = np.nan
+    primary[primary == 0.0] = np.where(rng.random(np.count_nonzero(primary == 0.0)) < 0.5, -0.0, 0.0)
+    order = np.lexsort((secondary, primary, owner))
+    expected = order[np.concatenate([[True], np.diff(owner[order]) != 0])]
+    assert np.array_equal(_run_minima(owner, primary, secondary), expected)
+    assert len(_run_minima(owner[:0], primary[:0], secondary[:0])) == 0
+
+
+def closest_point_barycentrics_numpy(p: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`closest_point_barycentrics` in numpy (same arguments and results): the definition its
+    compiled loop follows value for value."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    e0, e1, rel = b - a, c - a, p - a
+    d00, d01, d11 = (np.einsum("ij,ij->i", x, y) for x, y in ((e0, e0), (e0, e1), (e1, e1)))
+    d20, d21 = np.einsum("ij,ij->i", rel, e0), np.einsum("ij,ij->i", rel, e1)
+    den = d00 * d11 - d01 * d01
+    ok = den > 1e-12 * d00 * d11  # not degenerate (relative to the edge lengths)
+    safe = np.where(ok, den, 1.0)
+    v = (d11 * d20 - d01 * d21) / safe
+    w = (d00 * d21 - d01 * d20) / safe
+    plane = np.column_stack([1.0 - v - w, v, w])
+    inside = ok & (plane.min(axis=1) >= -INSIDE_EPS)
+
+    # Outside (or degenerate): the nearest point over the three edges.
+    best_d = np.full(len(p), np.inf)
+    best = np.zeros((len(p), 3))
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        edge = tri[:, j] - tri[:, i]
+        length2 = np.einsum("ij,ij->i", edge, edge)
+        t = np.clip(np.einsum("ij,ij->i", p - tri[:, i], edge) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+        d = np.linalg.norm(p - tri[:, i] - t[:, None] * edge, axis=1)
+        closer = d < best_d
+        best_d = np.where(closer, d, best_d)
+        row = np.zeros((len(p), 3))
+        row[:, i], row[:, j] = 1.0 - t, t
+        best[closer] = row[closer]
+    inner = np.clip(plane, 0.0, None)
+    inner /= np.where(inner.sum(axis=1) > 0, inner.sum(axis=1), 1.0)[:, None]
+    bary = np.where(inside[:, None], inner, best)
+    normal = np.cross(e0, e1)
+    normal_length = np.sqrt(np.where(ok, np.einsum("ij,ij->i", normal, normal), 1.0))
+    plane_d = np.abs(np.einsum("ij,ij->i", rel, normal)) / normal_length
+    return bary, np.where(inside, plane_d, best_d), inside
+
+
+def test_compiled_closest_points_are_the_numpy_definition():
+    rng = np.random.default_rng(9)
+    n = 20000
+    p, tri = rng.standard_normal((n, 3)), rng.standard_normal((n, 3, 3))
+    tri[:500, 2] = tri[:500, 1]  # degenerate: an edge twice
+    tri[500:1000, 1:] = tri[500:1000, :1]  # a point
+    p[1000:4000] = np.einsum("mkj,k->mj", tri[1000:4000], [0.2, 0.3, 0.5])  # in the plane, inside
+    p[4000:5000] = tri[4000:5000, 0]  # on a corner
+    got, expected = closest_point_barycentrics(p, tri), closest_point_barycentrics_numpy(p, tri)
+    for a, b in zip(got, expected):
+        assert np.array_equal(a, b)
