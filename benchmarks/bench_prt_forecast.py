@@ -44,7 +44,8 @@ def main() -> None:
         f = prt_forecast(plan, K)
         t_forecast = time.perf_counter() - t
         print(f"{name} ({len(x)} vertices): plan {t_plan:.1f} s, forecast {t_forecast:.1f} s: {f.entries / 1e6:.1f}M "
-              f"entries, peak {f.peak_bytes / 1e9:.2f} GB, build + {K} directions {f.seconds:.1f} s", flush=True)
+              f"entries, operator {f.gather.operator_bytes / 1e9:.2f} GB, peak {f.peak_bytes / 1e9:.2f} GB, "
+              f"build + {K} directions {f.seconds:.1f} s", flush=True)
         if args.no_build:
             continue
         t = time.perf_counter()

@@ -348,3 +348,26 @@ def test_a_reader_gone_before_the_output_gets_no_traceback():
     os.close(write)
     stderr = proc.communicate()[1].decode()
     assert proc.returncode == 128 + signal.SIGPIPE and stderr == "", stderr
+
+
+def test_bake_starts_its_fork_server_before_the_pipelines_imports():
+    """The CLI imports no technique until a command needs one, and ``bake`` starts the fork server its
+    workers come from first, so that the server's imports run beside the CLI's own; not for
+    ``--help`` nor ``--dask`` (no worker of this machine), nor for other commands."""
+    probe = """
+import sys
+from multiprocessing import forkserver
+from sssbake.pipeline import cli
+print('sssbake.pipeline.techniques.registry' in sys.modules, 'numpy' in sys.modules)
+cli._early_fork_server(sys.argv[1:])
+print(forkserver._forkserver._forkserver_pid is not None, 'sssbake.pipeline.options' in sys.modules)
+"""
+
+    def run(*argv):
+        done = subprocess.run([sys.executable, "-c", probe, *argv], capture_output=True, text=True, check=True)
+        return done.stdout.split()
+
+    assert run("bake", "a.obj", "-o", "out") == ["False", "False", "True", "False"]
+    for argv in (("bake", "a.obj", "-o", "out", "--help"), ("bake", "a.obj", "-o", "out", "--dask", "local:1"),
+                 ("plan", "a.obj")):
+        assert run(*argv) == ["False", "False", "False", "False"], argv

@@ -33,6 +33,7 @@ from sssbake.pipeline.bake.invariants import (
 from sssbake.pipeline.bake.os_errors import os_error_line
 from sssbake.pipeline.core.back_share import MIN_BEHIND, gathered_shares, object_gains
 from sssbake.pipeline.core.materials import Material
+from sssbake.pipeline.core.near_field import NearField
 from sssbake.pipeline.core.profile import profile_for
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.atlas import Atlas, AtlasPart
@@ -43,6 +44,7 @@ from sssbake.pipeline.mesh.proxy_atlas import layout_atlas
 from sssbake.pipeline.mesh.scene import Image, Mesh, Node, Primitive, Scene, SourceMaterial, Texture, TextureRef
 from sssbake.pipeline.mesh.thickness import ThicknessResult, bake_thickness
 from sssbake.pipeline.mesh.thickness_map import ThicknessMap, bake_thickness_map
+from sssbake.pipeline.mesh.winding import edge_defects
 from sssbake.pipeline.options import BakeOptions
 from sssbake.pipeline.planning.pilot import Pilot, run_pilot
 from sssbake.pipeline.techniques.technique import MESH, BakeTarget, Technique, TechniqueBake
@@ -416,13 +418,23 @@ class EscapeGainParams:
 def escape_gain_stage(surface: Surface, params: EscapeGainParams) -> tuple[EscapeGain, tuple, tuple]:
     """The walk's `EscapeGain` and the `Material.escape_gain` and `Material.back_gain` it implies
     (`core.back_share`). A mesh no light crosses (too few photons left behind anywhere) keeps one
-    factor for all its light, the walk's gain, and skips the gather."""
-    walk = escape_gain(surface.positions, surface.faces, params.mm_per_unit, params.material)
-    if not walk.closed or max(walk.behind) < MIN_BEHIND:
-        return walk, walk.gain, (1.0, 1.0, 1.0)
+    factor for all its light, the walk's gain, and skips the gather.
+
+    The gather's near field is built before the walk: its disc table, most of its cost (~1 s of the
+    50k dragon's stage), is made on threads beside the walk (`DiscMean.build`), which keeps one
+    core busy. Those threads need no GIL, which the walk takes and drops a few times a flight (a
+    near field built on a thread of its own beside it held the walk up under load). Where the walk
+    then skips the gather, the field was built for nothing. An open surface is not walked: nothing
+    is built for it."""
     mm = params.mm_per_unit
-    front, back = gathered_shares(surface.positions * mm, surface.faces, surface.normals,
-                                  surface.vertex_areas * mm * mm, profile_for(params.material))
+    x, profile = surface.positions * mm, profile_for(params.material)
+    closed = edge_defects(surface.faces).closed
+    field = NearField.build(x, surface.faces, surface.normals, profile) if closed else None
+    walk = escape_gain(surface.positions, surface.faces, mm, params.material, closed=closed)
+    if not closed or max(walk.behind) < MIN_BEHIND:
+        return walk, walk.gain, (1.0, 1.0, 1.0)
+    front, back = gathered_shares(x, surface.faces, surface.normals, surface.vertex_areas * mm * mm, profile,
+                                  field=field)
     return (walk, *object_gains(walk.front, walk.back, walk.behind, front, back))
 
 

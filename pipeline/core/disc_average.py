@@ -72,17 +72,27 @@ class DiscMean:
     params : Profile
     log_a0 : float
         ln of the smallest tabulated radius (mm).
-    log_table : (3, A, T) float64
-        ln ḡ per channel at ln a = log_a0 + i·LOG_A_STEP, d/a = j·T_STEP.
+    rows : _Rows
+        The table as threads build it; `log_table` waits for them.
     """
 
     params: Profile
     log_a0: float
-    log_table: np.ndarray
+    rows: "_Rows"
+
+    @property
+    def log_table(self) -> np.ndarray:
+        """(3, A, T) float64: ln ḡ per channel at ln a = log_a0 + i·LOG_A_STEP, d/a = j·T_STEP
+        (read-only), once the threads that build it are done."""
+        return self.rows.result()
 
     @staticmethod
     def build(params: Profile, radii_mm: np.ndarray) -> "DiscMean":
-        """Tabulate for source radii in the range of `radii_mm` (any shape, mm; zeros ignored)."""
+        """Tabulate for source radii in the range of `radii_mm` (any shape, mm; zeros ignored).
+
+        Returns at once: the rows are built on threads of their own while the caller goes on (the
+        escape gain's stage walks meanwhile: `bake.stages.escape_gain_stage`), and the first read
+        of `log_table` waits for them."""
         radii = np.asarray(radii_mm, dtype=np.float64)
         floor = SMALL_DISC * float(params.z_min.min())
         big = radii[radii >= floor]
@@ -94,14 +104,28 @@ class DiscMean:
         return DiscMean(params, lo, _log_table(*poles, params.weight.shape, lo, count_a, count_t))
 
 
+class _Rows:
+    """A table whose row blocks `parts` (futures) fill on threads: `result` waits for them (and
+    raises what one raised) and returns the table read-only, so that no caller can change another's."""
+
+    def __init__(self, table: np.ndarray, parts: list):
+        self.table, self.parts = table, parts
+
+    def result(self) -> np.ndarray:
+        for part in self.parts:
+            part.result()
+        self.table.flags.writeable = False
+        return self.table
+
+
 @lru_cache(maxsize=8)
 def _log_table(weight: bytes, depth: bytes, sigma: bytes, shape: tuple, lo: float, count_a: int,
-               count_t: int) -> np.ndarray:
-    """`DiscMean.log_table` for a profile's poles (as bytes of `shape`) on the grid from ln a = `lo`.
+               count_t: int) -> _Rows:
+    """`DiscMean.rows` for a profile's poles (as bytes of `shape`) on the grid from ln a = `lo`.
 
     Kept: one bake builds the same table for the same surface and profile several times (the
     pilot's reference and prt's pilot item, the escape gain's gather), 1-2.7 s each at 4k-50k
-    vertices. Read-only, so that no caller can change another's."""
+    vertices."""
     weight, depth, sigma = (np.frombuffer(b, dtype=np.float64).reshape(shape) for b in (weight, depth, sigma))
     a = np.exp(lo + LOG_A_STEP * np.arange(count_a))
     t = T_STEP * np.arange(count_t)
@@ -112,11 +136,12 @@ def _log_table(weight: bytes, depth: bytes, sigma: bytes, shape: tuple, lo: floa
     gauss = np.polynomial.legendre.leggauss(NODES)
     threads = min(len(os.sched_getaffinity(0)), count_a)
     bounds = np.linspace(0, count_a, threads + 1).astype(int)
-    with ThreadPoolExecutor(threads) as pool:  # the rows release the GIL
-        list(pool.map(lambda k: disc_mean_rows(a, t, weight, depth, sigma, *gauss, table, bounds[k], bounds[k + 1]),
-                      range(threads)))
-    table.flags.writeable = False
-    return table
+    # The rows release the GIL: the caller's Python runs on beside them without waiting for it.
+    pool = ThreadPoolExecutor(threads)
+    parts = [pool.submit(disc_mean_rows, a, t, weight, depth, sigma, *gauss, table, bounds[k], bounds[k + 1])
+             for k in range(threads)]
+    pool.shutdown(wait=False)  # its threads end with the rows
+    return _Rows(table, parts)
 
 
 def _polar_rule(rings: int, angles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

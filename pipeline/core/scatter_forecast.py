@@ -14,10 +14,9 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
-from sssbake.pipeline.core.scatter_kernels import cluster_moments, csr_rows_product
-from sssbake.pipeline.core.scatter_operator import ScatterPlan
+from sssbake.pipeline.core.scatter_kernels import cluster_moments
+from sssbake.pipeline.core.scatter_operator import ChannelRows, ScatterPlan, layout_bytes
 
 #: Share of the targets built for the forecast.
 SAMPLE = 0.02
@@ -34,7 +33,7 @@ class ScatterForecast:
     """Attributes
     ----------
     entries : int
-        Stored entries over all channels and matrices.
+        Stored values over all channels and matrices (`ScatterOperator.nnz`).
     operator_bytes : int
         The operator's matrices and index arrays (`ScatterOperator.nbytes`).
     build_peak_bytes : int
@@ -77,25 +76,27 @@ def scatter_forecast(plan: ScatterPlan, fraction: float = SAMPLE) -> ScatterFore
     t = time.perf_counter()
     near, levels = plan.matrices(rows)  # per target: the plan holds what the clusters cost
     build = (time.perf_counter() - t) * scale
-    # Built coarsest level first, the near pairs last (`ScatterPlan.matrices`).
+    # Built coarsest level first, the near pairs last (`ScatterPlan.matrices`), each in the layout
+    # its sample took: the choice is by the ratio of the union to the channels' entries, which
+    # the sample's share of targets keeps.
     matrices = [f.matrix for f in levels[::-1]] + [near]
-    entries = [m.nnz * scale for m in matrices]
-    index_bytes = 4 if sum(entries) < 2**31 else 8
-    sizes = [e * (near.dtype.itemsize + index_bytes) + (3 * n + 1) * index_bytes for e in entries]
+    entries = sum(m.nnz * scale for m in matrices)
+    sizes = [layout_bytes(m.shared, n, int(round(len(m.indices) * scale)), m.width, m.dtype.itemsize)
+             for m in matrices]
     held, peak = 0.0, 0.0
     for size in sizes:
         peak = max(peak, held + 2.0 * size)
         held += size
     operator = held + n * (8 + 3 * 8) + sum(f.starts.nbytes for f in levels)  # order, source_area, starts
-    return ScatterForecast(int(round(sum(entries))), int(operator), int(max(peak, operator)), build,
+    return ScatterForecast(int(round(entries)), int(operator), int(max(peak, operator)), build,
                            _apply_seconds(plan, near, levels, scale), len(rows))
 
 
-def _apply_seconds(plan: ScatterPlan, near: sp.csr_matrix, levels: list, scale: float) -> float:
+def _apply_seconds(plan: ScatterPlan, near: ChannelRows, levels: list, scale: float) -> float:
     """Seconds per signal of `ScatterOperator.apply`, timed as it runs: a pass of `threads · block`
     signals, its per-source work (the signal in internal order, each level's cluster moments, the
     result clamped and put back in the caller's order) as it is, the sample's products
-    (`csr_rows_product`) scaled to every target and shared among the apply's threads."""
+    (`ChannelRows.product`) scaled to every target and shared among the apply's threads."""
     n, width = len(plan.positions), plan.workers * plan.options.block
     dtype = near.dtype
     signal = np.random.default_rng(0).random((n, width))
@@ -104,7 +105,8 @@ def _apply_seconds(plan: ScatterPlan, near: sp.csr_matrix, levels: list, scale: 
     q, out = np.zeros((3 * n, width), dtype), np.empty((3, n, width), dtype)
     # the compiled kernels loaded (or compiled) before the clock starts
     cluster_moments(signal[:1].astype(dtype), area[:, :1], np.zeros(1, np.int64), np.empty((3, width), dtype))
-    csr_rows_product(0, 0, near.indptr, near.indices, near.data, q, q, False)
+    for m, x in zip([near, *(f.matrix for f in levels)], [q, *moments]):
+        m.product(0, 0, x, q, False)
     t = time.perf_counter()
     e = signal[plan.order].astype(dtype)
     for f, m in zip(levels, moments):
@@ -115,9 +117,9 @@ def _apply_seconds(plan: ScatterPlan, near: sp.csr_matrix, levels: list, scale: 
     runs = []
     for _ in range(3):  # the median of three: the sample's products take a few milliseconds
         t = time.perf_counter()
-        csr_rows_product(0, near.shape[0], near.indptr, near.indices, near.data, e, q, False)
+        near.product(0, near.rows, e, q, False)
         for f, m in zip(levels, moments):
-            csr_rows_product(0, near.shape[0], f.matrix.indptr, f.matrix.indices, f.matrix.data, m, q, True)
+            f.matrix.product(0, near.rows, m, q, True)
         runs.append((time.perf_counter() - t) * scale)
     # the moments run a level per thread, the rest of the per-source work on one
     return (whole + float(np.median(runs)) / plan.workers) / width

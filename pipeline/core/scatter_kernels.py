@@ -9,8 +9,9 @@ the CSR arrays are allocated once at their final size, the other fills them. Bot
 GIL, so the callers' threads run blocks side by side.
 
 Also compiled: the plan's descent to child cell pairs (`child_pairs`) and the operator's apply
-(`csr_rows_product`, `cluster_moments`): scipy's products read the 2 GB operator of the 150k
-dragon once per thread's block of columns, ~3.5× the CPU per column of one pass over all columns.
+(`csr_rows_product`, `shared_rows_product`, `cluster_moments`): scipy's products read the 2 GB
+operator of the 150k dragon once per thread's block of columns, ~3.5× the CPU per column of one
+pass over all columns.
 
 The arithmetic follows the numpy definitions term by term (`profile.diffuse_reflectance_profile`,
 `disc_average.DiscMean`, and the disc mean's numpy form in tests/disc_reference.py), with two
@@ -399,14 +400,16 @@ def pair_weights(o, i, field, weight, depth, sigma, disc, cumulative):
 
 @_jit
 def pair_counts(j0, j1, rows, keys, ptr, lists, range_ptr, targets, sources, radius, counts):
-    """Entries of rows j0..j1 - 1 per channel into counts (3, T): sources within the channel's
-    radius of target rows[j].
+    """Entries of rows j0..j1 - 1 into counts (4, T): per channel c < 3 the sources within the
+    channel's radius of target rows[j], and in counts[3] those within the largest radius (the
+    channels' patterns' union, which a shared layout stores).
 
     Row j's sources are sources[range_ptr[g]] .. sources[range_ptr[g + 1] - 1] (3,) each, for
     each g in lists[ptr[keys[j]]:ptr[keys[j] + 1]] (vertices of cells, or clusters one by one)."""
+    r_max = max(radius[0], radius[1], radius[2])
     for j in range(j0, j1):
         o = rows[j]
-        n0 = n1 = n2 = 0
+        n0 = n1 = n2 = n3 = 0
         for g in lists[ptr[keys[j]]:ptr[keys[j] + 1]]:
             for i in range(range_ptr[g], range_ptr[g + 1]):
                 dx, dy, dz = targets[o, 0] - sources[i, 0], targets[o, 1] - sources[i, 1], targets[o, 2] - sources[i, 2]
@@ -414,21 +417,43 @@ def pair_counts(j0, j1, rows, keys, ptr, lists, range_ptr, targets, sources, rad
                 n0 += d <= radius[0]
                 n1 += d <= radius[1]
                 n2 += d <= radius[2]
-        counts[0, j], counts[1, j], counts[2, j] = n0, n1, n2
+                n3 += d <= r_max
+        counts[0, j], counts[1, j], counts[2, j], counts[3, j] = n0, n1, n2, n3
+
+
+@_inline
+def _put(shared, t, j, d, radius, column, value, indptr, at, indices, data):
+    """Writes one source's entries (value (3,) per channel, at `column`) of row j, at the next
+    place `at` (3,) of each channel's row: in a shared layout (`pair_counts` union; data (U·3,)
+    as (U, 3)) one entry for the three channels, 0.0 where d is beyond the channel's radius; else
+    channel c's row j is CSR row c·T + j."""
+    if shared:
+        k = indptr[j] + at[0]
+        indices[k] = column
+        for c in range(3):
+            data[3 * k + c] = value[c] if d <= radius[c] else 0.0
+        at[0] += 1
+        return
+    for c in range(3):
+        if d <= radius[c]:
+            k = indptr[c * t + j] + at[c]
+            indices[k], data[k] = column, value[c]
+            at[c] += 1
 
 
 @_jit
 def near_fill(j0, j1, rows, keys, ptr, lists, range_ptr, radius, field, weight, depth, sigma, disc, cumulative,
-              indptr, indices, data):
-    """Writes the entries of rows j0..j1 - 1 (`pair_counts`, the vertices of cells) into CSR arrays
-    of 3T rows: channel c's row j at indptr[c·T + j], the sources in list order."""
+              shared, indptr, indices, data):
+    """Writes the entries of rows j0..j1 - 1 (`pair_counts`, the vertices of cells) into CSR arrays,
+    in the layout `_put` describes, the sources in list order."""
     x = field[0]
     t = len(rows)
     r_max = max(radius[0], radius[1], radius[2])
     value, scratch = np.empty(3), np.empty(6)
+    at = np.empty(3, dtype=np.int64)
     for j in range(j0, j1):
         o = rows[j]
-        at0, at1, at2 = indptr[j], indptr[t + j], indptr[2 * t + j]
+        at[:] = 0
         for g in lists[ptr[keys[j]]:ptr[keys[j] + 1]]:
             for i in range(range_ptr[g], range_ptr[g + 1]):
                 dx, dy, dz = x[o, 0] - x[i, 0], x[o, 1] - x[i, 1], x[o, 2] - x[i, 2]
@@ -436,50 +461,44 @@ def near_fill(j0, j1, rows, keys, ptr, lists, range_ptr, radius, field, weight, 
                 if d > r_max:
                     continue
                 pair_weight(o, i, field, weight, depth, sigma, disc, cumulative, value, scratch)
-                if d <= radius[0]:
-                    indices[at0], data[at0] = i, value[0]
-                    at0 += 1
-                if d <= radius[1]:
-                    indices[at1], data[at1] = i, value[1]
-                    at1 += 1
-                if d <= radius[2]:
-                    indices[at2], data[at2] = i, value[2]
-                    at2 += 1
+                _put(shared, t, j, d, radius, i, value, indptr, at, indices, data)
 
 
 @_jit
-def far_fill(j0, j1, rows, keys, ptr, lists, xt, centroid, spread, trace, radius, log_lo, step, value, slope, m,
-             indptr, indices, data):
+def far_fill(j0, j1, rows, keys, ptr, lists, xt, centroid, spread, trace, radius, log_lo, step, value, slope,
+             shared, indptr, indices, data):
     """Writes the cluster kernels Rd_c(D) + ½ tr(H Σ) of rows j0..j1 - 1 (`pair_counts`, clusters one by one) into CSR
-    arrays of 3T rows, channel c's columns c·m + cluster (`_KernelTable` value, slope (3, 3, N))."""
+    arrays, in the layout `_put` describes, the columns the clusters (`_KernelTable` value, slope (3, 3, N))."""
     t = len(rows)
     nodes = value.shape[2]
+    r_max = max(radius[0], radius[1], radius[2])
     at = np.empty(3, dtype=np.int64)
+    kernel = np.empty(3)
     for j in range(j0, j1):
         o = rows[j]
-        at[0], at[1], at[2] = indptr[j], indptr[t + j], indptr[2 * t + j]
+        at[:] = 0
         for s in lists[ptr[keys[j]]:ptr[keys[j] + 1]]:
             dx, dy, dz = xt[0, o] - centroid[0, s], xt[1, o] - centroid[1, s], xt[2, o] - centroid[2, s]
             d2 = dx * dx + dy * dy + dz * dz
             d = math.sqrt(d2)  # >= separation · h_l > 0
+            if d > r_max:
+                continue
             radial = (spread[0, s] * dx * dx + spread[1, s] * dy * dy + spread[2, s] * dz * dz
                       + 2.0 * (spread[3, s] * dx * dy + spread[4, s] * dx * dz + spread[5, s] * dy * dz)) / d2
             u = (math.log(d) - log_lo) / step
             node = min(max(int(u), 0), nodes - 2)
             w = u - node
             for c in range(3):
-                if d <= radius[c]:
-                    kernel = value[c, 0, node] + w * slope[c, 0, node]
-                    kernel += (value[c, 1, node] + w * slope[c, 1, node]) * radial
-                    kernel += (value[c, 2, node] + w * slope[c, 2, node]) * trace[s]
-                    indices[at[c]], data[at[c]] = c * m + s, kernel
-                    at[c] += 1
+                kernel[c] = value[c, 0, node] + w * slope[c, 0, node]
+                kernel[c] += (value[c, 1, node] + w * slope[c, 1, node]) * radial
+                kernel[c] += (value[c, 2, node] + w * slope[c, 2, node]) * trace[s]
+            _put(shared, t, j, d, radius, s, kernel, indptr, at, indices, data)
 
 
 @_jit
 def csr_rows_product(r0, r1, indptr, indices, data, x, y, add):
     """Rows r0..r1 - 1 of the sparse product A x, A in CSR (indptr, indices, data) and x (width, K)
-    dense: into y (rows, K) in place, or added to it where `add` (`scatter_operator.ScatterOperator.apply`).
+    dense: into y (rows, K) in place, or added to it where `add` (`scatter_operator.ChannelRows.product`).
 
     Each row is summed in `y`'s dtype entry by entry in CSR order, as scipy's `A @ x` does (its
     result is equal bit for bit), but over all K columns at once: the matrix is read once per
@@ -500,6 +519,61 @@ def csr_rows_product(r0, r1, indptr, indices, data, x, y, add):
         else:
             for c in range(k):
                 y[r, c] = s[c]
+
+
+@_inline
+def _put_row(s, y, r, add):
+    """y[r] = s, or y[r] += s where `add`."""
+    if add:
+        for c in range(len(s)):
+            y[r, c] += s[c]
+    else:
+        for c in range(len(s)):
+            y[r, c] = s[c]
+
+
+@_jit
+def shared_rows_product(o0, o1, indptr, indices, data, stride, x, y, add):
+    """Rows o0..o1 - 1 of the three products A_c x_c of matrices sharing one CSR pattern (indptr,
+    indices) with values data (nnz, 3), x_c's row j x[c·stride + j] (stride 0: one x for the
+    three): channel c's row o into y[c·T + o] (T = len(indptr) - 1) in place, or added to it
+    where `add`.
+
+    Each (row, channel) is summed entry by entry in CSR order as `csr_rows_product` sums a row:
+    its result over the channel's own entries bit for bit, the pattern's others holding 0.0 (a
+    sum plus 0·x, x finite, is the sum). With one x the three sums share each index and row of x
+    (the 150k dragon's exact pairs: 40 % less CPU than the split layout's three rows); else a
+    row's channels go one after another, its indices then in cache, at the split layout's cost
+    per stored value (three sums over three channels' rows at once took up to 50 % more)."""
+    t = len(indptr) - 1
+    k = x.shape[1]
+    s0, s1, s2 = np.zeros(k, dtype=y.dtype), np.zeros(k, dtype=y.dtype), np.zeros(k, dtype=y.dtype)
+    for o in range(o0, o1):
+        lo, hi = indptr[o], indptr[o + 1]
+        if stride:
+            for ch in range(3):
+                for c in range(k):
+                    s0[c] = 0
+                for jj in range(lo, hi):
+                    a = data[jj, ch]
+                    row = x[ch * stride + indices[jj]]
+                    for c in range(k):
+                        s0[c] += a * row[c]
+                _put_row(s0, y, ch * t + o, add)
+            continue
+        for c in range(k):
+            s0[c] = s1[c] = s2[c] = 0
+        for jj in range(lo, hi):
+            a0, a1, a2 = data[jj, 0], data[jj, 1], data[jj, 2]
+            row = x[indices[jj]]
+            for c in range(k):
+                v = row[c]
+                s0[c] += a0 * v
+                s1[c] += a1 * v
+                s2[c] += a2 * v
+        _put_row(s0, y, o, add)
+        _put_row(s1, y, t + o, add)
+        _put_row(s2, y, 2 * t + o, add)
 
 
 @_jit

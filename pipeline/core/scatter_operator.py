@@ -33,6 +33,10 @@ rows to say beforehand what the whole will hold and take.
 Vertices are kept in Morton order of their finest cell, so every cell of every level is a
 contiguous run of vertices (clusters are sums over runs) and the sparse products read memory
 that lies close together.
+
+The three colour channels' entries of a matrix (`ChannelRows`) share one column index each where
+that stores fewer bytes: the exact pairs are within every channel's radius but on rare meshes,
+the finest levels' clusters mostly too, the coarse ones of skin-like materials only within red's.
 """
 
 from __future__ import annotations
@@ -43,7 +47,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from sssbake.pipeline.core.profile import (
@@ -63,6 +66,7 @@ from sssbake.pipeline.core.scatter_kernels import (
     far_fill,
     near_fill,
     pair_counts,
+    shared_rows_product,
 )
 from sssbake.pipeline.core.surface import vertex_areas
 
@@ -125,9 +129,8 @@ class ScatterOperator:
     source_area : (3, n) float64
         Per channel, ΔA of each internal vertex (mm²) times its energy scale (`_limit_energy`):
         what the clusters' Σ ΔA E weigh.
-    near : csr_matrix (3n, n)
-        Exact pairs in internal order; channel c in rows c·n .. c·n + n - 1: ∫_{cell_i} Rd_c,
-        times the source's energy scale.
+    near : ChannelRows (n targets, n sources, stride 0)
+        Exact pairs in internal order: ∫_{cell_i} Rd_c, times the source's energy scale.
     levels : list of FarLevel
         The cluster terms of each level that has any.
     radius_mm : (3,) float64
@@ -135,15 +138,16 @@ class ScatterOperator:
     dropped_fraction : (3,) float64
         Fraction of R_d beyond `radius_mm` (<= energy_dropped).
     stats : dict
-        ``cell_mm``, ``levels``, ``separation``, ``near_nnz``, and per level with cluster terms
-        (finest first) ``cells`` and ``far_nnz``; ``seconds`` to build.
+        ``cell_mm``, ``levels``, ``separation``, ``near_nnz`` and ``near_shared`` (its stored
+        values, `ChannelRows.nnz`, and whether its layout is shared), and per level with cluster
+        terms (finest first) ``cells``, ``far_nnz`` and ``far_shared``; ``seconds`` to build.
     threads, block : int
         From the options.
     """
 
     order: np.ndarray
     source_area: np.ndarray
-    near: sp.csr_matrix
+    near: "ChannelRows"
     levels: list = field(default_factory=list)
     radius_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
     dropped_fraction: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -153,14 +157,15 @@ class ScatterOperator:
 
     @property
     def nnz(self) -> int:
-        """Stored entries over all channels (exact pairs plus vertex-cluster terms)."""
+        """Stored values over all channels (exact pairs plus vertex-cluster terms, `ChannelRows.nnz`:
+        a shared layout's entry counts three, its 0.0 beyond a channel's radius included)."""
         return self.near.nnz + sum(f.matrix.nnz for f in self.levels)
 
     @property
     def nbytes(self) -> int:
         """Bytes of the stored matrices and index arrays."""
-        total = self.order.nbytes + self.source_area.nbytes + _csr_bytes(self.near)
-        return total + sum(_csr_bytes(f.matrix) + f.starts.nbytes for f in self.levels)
+        total = self.order.nbytes + self.source_area.nbytes + self.near.nbytes
+        return total + sum(f.matrix.nbytes + f.starts.nbytes for f in self.levels)
 
     def apply(self, signal: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Gather signals.
@@ -191,10 +196,11 @@ class ScatterOperator:
             raise ValueError(f"scatter apply: out must be (3, {n}, {k}), got {out.shape}")
         dtype = self.near.dtype
         matrices = [self.near, *(f.matrix for f in self.levels)]
-        # Rows in blocks of about equal entries, several per thread so that the threads finish together.
-        entries = sum(m.indptr.astype(np.int64) for m in matrices)
+        # Targets in blocks of about equal stored values, several per thread so that the threads
+        # finish together.
+        entries = sum(m.values_before() for m in matrices)
         cuts = np.searchsorted(entries, np.linspace(0, entries[-1], 8 * self.threads + 1)[1:-1])
-        bounds = np.unique(np.r_[0, cuts, 3 * n]).tolist()
+        bounds = np.unique(np.r_[0, cuts, n]).tolist()
         blocks = list(zip(bounds[:-1], bounds[1:]))
         clamp = bool(np.all(signal >= 0))
         # Passes of `threads · block` signals: every thread reads its rows of the matrices once per
@@ -211,9 +217,9 @@ class ScatterOperator:
             q = np.empty((3 * n, b - a), dtype)
 
             def run(rows: tuple) -> None:
-                # near first, then each level's sum added: q's rounding is scipy's `near @ e + Σ_l F_l @ m_l`
+                # near first, then each level's sum added: q's rounding is scipy's `near_c @ e + Σ_l F_lc @ m_lc`
                 for i, (m, x) in enumerate(zip(matrices, sources)):
-                    csr_rows_product(rows[0], rows[1], m.indptr, m.indices, m.data, x, q, i > 0)
+                    m.product(rows[0], rows[1], x, q, i > 0)
 
             _run_all(run, blocks, self.threads)
             if clamp:
@@ -229,15 +235,109 @@ class FarLevel:
 
     Attributes
     ----------
-    matrix : csr_matrix (3n, 3m)
-        Block-diagonal in the channels: rows c·n + o, columns c·m + cluster, each target's
-        kernel for the clusters' Σ ΔA E of channel c.
+    matrix : ChannelRows (n targets, m clusters, stride m)
+        Each target's kernel for the clusters' Σ ΔA E, channel c's read from the moments' rows
+        c·m + cluster (`scatter_kernels.cluster_moments`).
     starts : (m,) int64
         First internal vertex of each cluster (clusters are contiguous runs).
     """
 
-    matrix: sp.csr_matrix
+    matrix: "ChannelRows"
     starts: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class ChannelRows:
+    """Per colour channel c a sparse (T, width) matrix A_c, its row o the sources within the
+    channel's radius of target o in CSR order; the products read x_c = x[c·stride : c·stride + width].
+
+    Stored in one of two layouts, whichever takes fewer bytes (`_shared_layout`):
+
+    - shared: one pattern for the three channels, the union of theirs (the sources within the
+      largest radius): indptr (T + 1,), indices (U,), data (U, 3), 0.0 where a source is beyond
+      the channel's radius. Adding 0·x leaves a float sum as it was, so each channel's products
+      and column sums equal its own pattern's bit for bit, and each index is read once for three
+      values: 16 bytes per entry in float32 against 24 for three.
+    - split: channel c's row o is CSR row c·T + o: indptr (3T + 1,), indices and data (N,), N the
+      entries within their channel's radius over the channels: 8 bytes each.
+
+    Attributes
+    ----------
+    indptr, indices, data
+        As above; int32 indices where the entries and columns allow.
+    width : int
+        Columns: sources (exact pairs) or clusters.
+    stride : int
+        Rows of x between channels: 0 where the three read one signal (the exact pairs' E),
+        `width` where each reads its own (channel c's moments at rows c·m + cluster).
+    within : (3, T) int32 or None
+        Shared layout: per channel and row the entries within the channel's radius (what the
+        split layout stores), so that `_limit_energy` sums in the same chunks whichever the layout.
+    """
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    data: np.ndarray
+    width: int
+    stride: int
+    within: np.ndarray | None = None
+
+    @property
+    def shared(self) -> bool:
+        return self.data.ndim == 2
+
+    @property
+    def rows(self) -> int:
+        """T, the targets."""
+        return (len(self.indptr) - 1) // (1 if self.shared else 3)
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.data.dtype
+
+    @property
+    def nnz(self) -> int:
+        """Stored values: 3 per entry of a shared layout (its 0.0 included), 1 per entry of a split one."""
+        return self.data.size
+
+    @property
+    def nbytes(self) -> int:
+        within = 0 if self.within is None else self.within.nbytes
+        return self.data.nbytes + self.indices.nbytes + self.indptr.nbytes + within
+
+    def channel(self, c: int) -> tuple[np.ndarray, np.ndarray]:
+        """(ptr (T + 1,), values) of channel c: row o's entries are indices[ptr[o]:ptr[o + 1]] with
+        values[ptr[o]:ptr[o + 1]] (views: writing values writes the matrix)."""
+        if self.shared:
+            return self.indptr, self.data[:, c]
+        t = self.rows
+        return self.indptr[c * t:(c + 1) * t + 1], self.data
+
+    def channel_ptr(self) -> np.ndarray:
+        """(3T + 1,) int64: entries within their channel's radius before channel c's row o, at
+        c·T + o: the split layout's indptr."""
+        if self.shared:
+            return np.r_[0, np.cumsum(self.within, dtype=np.int64)]
+        return self.indptr.astype(np.int64)
+
+    def values_before(self) -> np.ndarray:
+        """(T + 1,) int64: stored values of the targets before each, over the channels."""
+        ptr = self.indptr.astype(np.int64)
+        if self.shared:
+            return 3 * ptr
+        t = self.rows
+        return ptr[:t + 1] + (ptr[t:2 * t + 1] - ptr[t]) + (ptr[2 * t:] - ptr[2 * t])
+
+    def product(self, o0: int, o1: int, x: np.ndarray, y: np.ndarray, add: bool) -> None:
+        """Targets o0..o1 - 1 of A_c x_c into y[c·T + o] (rows, K) in place, or added to it where `add`;
+        each (row, channel) summed in CSR order (`scatter_kernels`)."""
+        if self.shared:
+            shared_rows_product(o0, o1, self.indptr, self.indices, self.data, self.stride, x, y, add)
+            return
+        t = self.rows
+        for c in range(3):
+            x_c = x[c * self.stride:c * self.stride + self.width]
+            csr_rows_product(c * t + o0, c * t + o1, self.indptr, self.indices, self.data, x_c, y, add)
 
 
 def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: Profile,
@@ -274,8 +374,8 @@ def scatter_operator(positions_mm: np.ndarray, faces: np.ndarray, normals: np.nd
     near = build.near(rows, rows, np.r_[0, np.cumsum(count)], np.concatenate(lists).astype(np.int32), np.arange(n + 1),
                       count)
     source_area = _limit_energy(near, [], area, total)
-    stats = dict(levels=0, separation=0, near_nnz=int(near.nnz), far_nnz=[], cells=[],
-                 seconds=time.perf_counter() - t0)
+    stats = dict(levels=0, separation=0, near_nnz=near.nnz, near_shared=near.shared, far_nnz=[], far_shared=[],
+                 cells=[], seconds=time.perf_counter() - t0)
     return ScatterOperator(np.arange(n), source_area, near, [], radius, dropped, stats, options.threads, options.block)
 
 
@@ -334,9 +434,9 @@ class ScatterPlan:
         """Threads the forecasts count as working at once: `options.threads`, at most one a core."""
         return min(self.options.threads, os.cpu_count() or 1)
 
-    def matrices(self, rows: np.ndarray) -> tuple[sp.csr_matrix, list]:
-        """The rows of the targets `rows` (T,) internal indices: (near (3T, n), FarLevel per level with
-        cluster terms, finest first), before `_limit_energy`."""
+    def matrices(self, rows: np.ndarray) -> tuple[ChannelRows, list]:
+        """The rows of the targets `rows` (T,) internal indices: (near (T targets), FarLevel per level
+        with cluster terms, finest first), before `_limit_energy`."""
         levels = [FarLevel(self.builder.far(clusters, self.cell_of[level], rows), self.starts[level])
                   for level, clusters in self.far]
         # Pairs still near at level 0: every vertex pair, exactly.
@@ -351,8 +451,8 @@ class ScatterPlan:
         near, levels = self.matrices(np.arange(len(self.positions)))
         source_area = _limit_energy(near, levels, self.area, self.total)
         release_freed_memory()  # the build's temporaries, before the caller allocates q
-        stats = dict(self.stats, near_nnz=int(near.nnz), far_nnz=[int(f.matrix.nnz) for f in levels],
-                     cells=[len(f.starts) for f in levels],
+        stats = dict(self.stats, near_nnz=near.nnz, near_shared=near.shared, far_nnz=[f.matrix.nnz for f in levels],
+                     far_shared=[f.matrix.shared for f in levels], cells=[len(f.starts) for f in levels],
                      seconds=self.stats["seconds"] + time.perf_counter() - t0)
         return ScatterOperator(self.order, source_area, near, levels, self.radius_mm, self.dropped_fraction, stats,
                                self.options.threads, self.options.block)
@@ -445,7 +545,7 @@ def _radius(params: Profile, options: ScatterOptions) -> tuple[np.ndarray, np.nd
     return radius, total, dropped
 
 
-def _limit_energy(near: sp.csr_matrix, levels: list, area: np.ndarray, total: np.ndarray) -> np.ndarray:
+def _limit_energy(near: ChannelRows, levels: list, area: np.ndarray, total: np.ndarray) -> np.ndarray:
     """Scale down every source that would send out more than R_d; returns `source_area` (3, n).
 
     A source's outgoing fraction Σ_o ΔA_o K(o, i) / ΔA_i is at most R_d on a plane and on convex
@@ -457,39 +557,46 @@ def _limit_energy(near: sp.csr_matrix, levels: list, area: np.ndarray, total: np
     """
     n = len(area)
     headroom = 1.0 - 1e-6  # room for float32 rounding
-    weights = np.tile(area, 3)  # the target areas of each channel block
     source_area = np.tile(area, (3, 1))
-    far = [_column_sums(f.matrix, weights, 0, f.matrix.shape[0]).reshape(3, -1) for f in levels]  # Σ_o ΔA_o K(o, cluster)
+    far = [_column_sums(f.matrix, area, 0, 3 * n) for f in levels]  # Σ_o ΔA_o K(o, cluster)
     for c in range(3):
-        fraction = np.divide(_column_sums(near, area, c * n, (c + 1) * n), area, out=np.zeros(n), where=area > 0)
+        fraction = np.divide(_column_sums(near, area, c * n, (c + 1) * n)[c], area, out=np.zeros(n), where=area > 0)
         for f, per_cluster in zip(levels, far):
             fraction += np.repeat(per_cluster[c], np.diff(np.r_[f.starts, n]))
         over = fraction > headroom * total[c]
         if np.any(over):
             scale = np.ones(n)
             scale[over] = headroom * total[c] / fraction[over]
-            for r0, r1 in _row_chunks(near, c * n, (c + 1) * n):
-                lo, hi = near.indptr[r0], near.indptr[r1]
-                near.data[lo:hi] = (near.data[lo:hi].astype(np.float64) * scale[near.indices[lo:hi]]).astype(near.dtype)
+            ptr, values = near.channel(c)
+            for r0, r1 in _row_chunks(ptr, 0, n):
+                lo, hi = ptr[r0], ptr[r1]
+                values[lo:hi] = (values[lo:hi].astype(np.float64) * scale[near.indices[lo:hi]]).astype(near.dtype)
             source_area[c] *= scale
     return source_area
 
 
-def _row_chunks(matrix: sp.csr_matrix, row0: int, row1: int) -> list:
-    """(r0, r1) ranges of the rows row0..row1 - 1 with about ENTRIES_PER_CHUNK entries each."""
-    cuts = np.searchsorted(matrix.indptr, np.arange(matrix.indptr[row0], matrix.indptr[row1], ENTRIES_PER_CHUNK))
+def _row_chunks(indptr: np.ndarray, row0: int, row1: int) -> list:
+    """(r0, r1) ranges of the rows row0..row1 - 1 of a CSR `indptr` with about ENTRIES_PER_CHUNK entries each."""
+    cuts = np.searchsorted(indptr, np.arange(indptr[row0], indptr[row1], ENTRIES_PER_CHUNK))
     bounds = np.unique(np.r_[row0, np.clip(cuts, row0, row1), row1])
     return list(zip(bounds[:-1], bounds[1:]))
 
 
-def _column_sums(matrix: sp.csr_matrix, weights: np.ndarray, row0: int, row1: int) -> np.ndarray:
-    """(width,) Σ_r weights[r - row0] matrix[r, :] over rows row0..row1 - 1, in float64 and in
-    chunks of rows (scipy's `matrix.T @ weights` would first copy a float32 matrix to float64)."""
-    out = np.zeros(matrix.shape[1])
-    for r0, r1 in _row_chunks(matrix, row0, row1):
-        lo, hi = matrix.indptr[r0], matrix.indptr[r1]
-        w = np.repeat(weights[r0 - row0:r1 - row0], np.diff(matrix.indptr[r0:r1 + 1]))
-        out += np.bincount(matrix.indices[lo:hi], weights=w * matrix.data[lo:hi], minlength=len(out))
+def _column_sums(matrix: ChannelRows, weights: np.ndarray, row0: int, row1: int) -> np.ndarray:
+    """(3, width): per channel c, Σ_o weights[o] A_c[o, :] over its rows o with c·T + o in row0..row1 - 1
+    (the channels' rows one after another, as the split layout stores them), in float64 and in
+    chunks of rows with about ENTRIES_PER_CHUNK entries within their channels' radii: the same
+    chunks, so the same rounding, whichever the layout (a shared layout's 0.0 adds nothing).
+    scipy's `matrix.T @ weights` would first copy a float32 matrix to float64."""
+    t = matrix.rows
+    out = np.zeros((3, matrix.width))
+    for r0, r1 in _row_chunks(matrix.channel_ptr(), row0, row1):
+        for c in range(r0 // t, -(-r1 // t)):  # the channels the chunk reaches
+            a, b = max(r0 - c * t, 0), min(r1 - c * t, t)
+            ptr, values = matrix.channel(c)
+            lo, hi = ptr[a], ptr[b]
+            w = np.repeat(weights[a:b], np.diff(ptr[a:b + 1]))
+            out[c] += np.bincount(matrix.indices[lo:hi], weights=w * values[lo:hi], minlength=matrix.width)
     return out
 
 
@@ -541,53 +648,76 @@ class _Builder:
         self.table = _KernelTable.build(params, closest, float(radius.max())) if closest > 0 else None
 
     def near(self, rows: np.ndarray, keys: np.ndarray, ptr: np.ndarray, lists: np.ndarray, ranges: np.ndarray,
-             per_row: np.ndarray) -> sp.csr_matrix:
-        """(3T, n): ∫_{cell_i} Rd_c(|p - x_o|) dp (`NearField.weights`) for each target
+             per_row: np.ndarray) -> ChannelRows:
+        """T targets × n sources: ∫_{cell_i} Rd_c(|p - x_o|) dp (`NearField.weights`) for each target
         o = rows[j] and its sources i within the channel's radius.
 
         Row j's sources are the vertices ranges[g] .. ranges[g + 1] - 1 of each g in
         lists[ptr[keys[j]]:ptr[keys[j] + 1]], in that order; `per_row` (T,) counts them."""
         x, args = self.field.positions, self.field.kernel_args
         return self._assemble(
-            per_row, len(x),
+            per_row, len(x), 0,
             lambda j0, j1, counts: pair_counts(j0, j1, rows, keys, ptr, lists, ranges, x, x, self.radius, counts),
-            lambda j0, j1, indptr, indices, data: near_fill(j0, j1, rows, keys, ptr, lists, ranges, self.radius,
-                                                            *args, indptr, indices, data))
+            lambda j0, j1, shared, indptr, indices, data: near_fill(
+                j0, j1, rows, keys, ptr, lists, ranges, self.radius, *args, shared, indptr, indices, data))
 
-    def far(self, clusters: "_Clusters", cell_of: np.ndarray, rows: np.ndarray) -> sp.csr_matrix:
-        """(3T, 3m): each target's cluster kernel Rd_c(D) + ½ tr(H Σ) for the clusters its cell
-        reads at this level; channel c's rows read channel c's moments (columns c·m + cluster)."""
+    def far(self, clusters: "_Clusters", cell_of: np.ndarray, rows: np.ndarray) -> ChannelRows:
+        """T targets × m clusters: each target's cluster kernel Rd_c(D) + ½ tr(H Σ) for the clusters
+        its cell reads at this level; channel c's products read channel c's moments."""
         m, c, table = clusters.count, clusters, self.table
         keys = cell_of[rows]
         xt = self.positions_t
         centroids, each = np.ascontiguousarray(c.centroid.T), np.arange(m + 1)  # clusters as one-item ranges
         return self._assemble(
-            c.ptr[keys + 1] - c.ptr[keys], 3 * m,
+            c.ptr[keys + 1] - c.ptr[keys], m, m,
             lambda j0, j1, counts: pair_counts(j0, j1, rows, keys, c.ptr, c.lists, each, self.field.positions,
                                                centroids, self.radius, counts),
-            lambda j0, j1, indptr, indices, data: far_fill(
+            lambda j0, j1, shared, indptr, indices, data: far_fill(
                 j0, j1, rows, keys, c.ptr, c.lists, xt, c.centroid, c.spread, c.trace, self.radius, table.log_lo,
-                table.step, table.value, table.slope, m, indptr, indices, data))
+                table.step, table.value, table.slope, shared, indptr, indices, data))
 
-    def _assemble(self, per_row: np.ndarray, width: int, count, fill) -> sp.csr_matrix:
-        """A (3T, width) CSR matrix, built in blocks of rows of about ENTRIES_PER_CHUNK candidate
+    def _assemble(self, per_row: np.ndarray, width: int, stride: int, count, fill) -> ChannelRows:
+        """The T targets' rows, built in blocks of rows of about ENTRIES_PER_CHUNK candidate
         pairs (`per_row` (T,) counts each row's): `count(j0, j1, counts)` writes each row's
-        entries per channel into counts (3, T), then `fill(j0, j1, indptr, indices, data)` writes
-        them in place, so the arrays are allocated once at their final size."""
+        entries per channel and their union into counts (4, T), then `fill(j0, j1, shared,
+        indptr, indices, data)` writes them in place in the layout that takes fewer bytes, so
+        the arrays are allocated once at their final size."""
         t = len(per_row)
         cum = np.cumsum(per_row)
         bounds = np.unique(np.r_[0, np.searchsorted(cum, np.arange(ENTRIES_PER_CHUNK, cum[-1] if t else 0,
                                                                    ENTRIES_PER_CHUNK)), t])
         blocks = list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
-        counts = np.zeros((3, t), dtype=np.int64)
+        counts = np.zeros((4, t), dtype=np.int64)
         _run_all(lambda b: count(b[0], b[1], counts), blocks, self.threads)
-        indptr = np.r_[0, np.cumsum(counts)]
+        within, union = counts[:3], counts[3]
+        shared = _shared_layout(t, int(union.sum()), int(within.sum()), width, np.dtype(self.dtype).itemsize)
+        indptr = np.r_[0, np.cumsum(union if shared else within.ravel())]
         size = int(indptr[-1])
-        index_dtype = np.int32 if max(size, width) < 2**31 else np.int64
+        index_dtype = _index_dtype(size, width)
         indices = np.empty(size, dtype=index_dtype)
-        data = np.empty(size, dtype=self.dtype)
-        _run_all(lambda b: fill(b[0], b[1], indptr, indices, data), blocks, self.threads)
-        return sp.csr_matrix((data, indices, indptr.astype(index_dtype)), shape=(3 * t, width))
+        data = np.empty((size, 3) if shared else size, dtype=self.dtype)
+        _run_all(lambda b: fill(b[0], b[1], shared, indptr, indices, data.reshape(-1)), blocks, self.threads)
+        return ChannelRows(indptr.astype(index_dtype), indices, data, width, stride,
+                           within.astype(np.int32) if shared else None)
+
+
+def _index_dtype(size: int, width: int):
+    """int32 where the entries and columns fit (half the bytes of int64)."""
+    return np.int32 if max(size, width) < 2**31 else np.int64
+
+
+def layout_bytes(shared: bool, rows: int, entries: int, width: int, itemsize: int) -> int:
+    """Bytes of a `ChannelRows` of `rows` targets holding `entries` (the union of the channels'
+    patterns where `shared`, else the channels' entries over the three), values of `itemsize`."""
+    index = np.dtype(_index_dtype(entries, width)).itemsize
+    if shared:
+        return entries * (index + 3 * itemsize) + (rows + 1) * index + 3 * rows * 4  # `within` int32
+    return entries * (index + itemsize) + (3 * rows + 1) * index
+
+
+def _shared_layout(rows: int, union: int, within: int, width: int, itemsize: int) -> bool:
+    """Whether the shared layout takes fewer bytes than the split one."""
+    return layout_bytes(True, rows, union, width, itemsize) < layout_bytes(False, rows, within, width, itemsize)
 
 
 @dataclass(frozen=True, eq=False)
@@ -624,10 +754,6 @@ def _run_all(fn, items: list, threads: int) -> list:
         with ThreadPoolExecutor(min(threads, len(items))) as pool:
             return list(pool.map(fn, items))
     return [fn(item) for item in items]
-
-
-def _csr_bytes(m: sp.csr_matrix) -> int:
-    return m.data.nbytes + m.indices.nbytes + m.indptr.nbytes
 
 
 def _runs(sorted_keys: np.ndarray) -> np.ndarray:

@@ -87,11 +87,14 @@ class EscapeGain:
 
 
 def escape_gain(positions: np.ndarray, faces: np.ndarray, mm_per_unit: float, material: Material,
-                seed: int = 1) -> EscapeGain:
+                seed: int = 1, closed: bool | None = None) -> EscapeGain:
     """The escape gain of `material` inside the surface `faces` (m, 3) over `positions` (n, 3)
-    (file units, `mm_per_unit` mm each): see the module docstring."""
+    (file units, `mm_per_unit` mm each): see the module docstring. `closed`: the surface's
+    ``winding.edge_defects(faces).closed`` where the caller has it already."""
     faces = np.asarray(faces, dtype=np.int64)
-    if not edge_defects(faces).closed:  # an opening lets photons out; a fold turns an entry normal inward
+    if closed is None:
+        closed = edge_defects(faces).closed
+    if not closed:  # an opening lets photons out; a fold turns an entry normal inward
         one, zero = (1.0, 1.0, 1.0), (0.0, 0.0, 0.0)
         return EscapeGain(one, one, zero, zero, zero, (0, 0, 0), (0, 0, 0), False)
     x = np.asarray(positions, dtype=np.float64) * float(mm_per_unit)

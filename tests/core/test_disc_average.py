@@ -104,3 +104,23 @@ def test_expansion_matches_its_derivative_form():
         expected[:, c] = np.maximum(f + 0.125 * a**2 * (f2 * (1.0 - c2) + slope * (1.0 + c2)), 0.0)
     got = disc_expansion(r, a, h, P)
     np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12 * expected.max())
+
+
+def test_the_table_built_on_threads_beside_the_caller_is_the_one_built_in_one_pass():
+    """`DiscMean.build` returns while threads fill its rows (`log_table` waits for them): the same
+    bits as every row in one compiled pass on this thread, read-only, and kept for the next build
+    of the same profile and grid."""
+    from sssbake.pipeline.core.disc_average import LOG_A_STEP, NODES, T_STEP, TABLE_REACH
+    from sssbake.pipeline.core.scatter_kernels import disc_mean_rows
+
+    p = profile_for(preset("skin1"))
+    radii = np.array([0.05, 0.4, 1.3])
+    built = DiscMean.build(p, radii)
+    table = built.log_table
+    a = np.exp(built.log_a0 + LOG_A_STEP * np.arange(table.shape[1]))
+    t = T_STEP * np.arange(int(round(TABLE_REACH / T_STEP)) + 1)
+    one_pass = np.empty_like(table)
+    disc_mean_rows(a, t, p.weight, p.depth, p.sigma, *np.polynomial.legendre.leggauss(NODES), one_pass, 0, len(a))
+    assert table.shape[1] > 2 and np.array_equal(table, one_pass)
+    assert not table.flags.writeable
+    assert DiscMean.build(p, radii).log_table is table

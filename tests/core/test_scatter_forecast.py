@@ -30,7 +30,7 @@ def test_plan_builds_the_operator():
     assert np.array_equal(a.order, b.order) and len(a.levels) == len(b.levels) > 0
     for u, v in [(a.near, b.near)] + [(p.matrix, q.matrix) for p, q in zip(a.levels, b.levels)]:
         assert np.array_equal(u.indptr, v.indptr) and np.array_equal(u.indices, v.indices)
-        assert np.array_equal(u.data, v.data)
+        assert np.array_equal(u.data, v.data) and np.array_equal(u.within, v.within)
     assert np.allclose(a.source_area, b.source_area, rtol=1e-12)
 
 

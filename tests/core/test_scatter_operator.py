@@ -3,6 +3,7 @@ energy bound, invariance, extremes."""
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 import trimesh
 from fixtures import plane
 
@@ -29,6 +30,25 @@ def lit(normals: np.ndarray, k: int = 6, seed: int = 0) -> np.ndarray:
     """(n, k) clamped-cosine irradiance of k random directional lights."""
     d = np.random.default_rng(seed).normal(size=(k, 3))
     return np.clip(normals @ (d / np.linalg.norm(d, axis=1, keepdims=True)).T, 0.0, None)
+
+
+def channel_csr(m, c: int) -> sp.csr_matrix:
+    """Channel c of a `ChannelRows` as a scipy (T, width) matrix (a shared layout's 0.0 included)."""
+    ptr, values = m.channel(c)
+    lo, hi = ptr[0], ptr[-1]
+    return sp.csr_matrix((values[lo:hi], m.indices[lo:hi], ptr - lo), shape=(m.rows, m.width))
+
+
+def matrices(op) -> list:
+    return [op.near] + [level.matrix for level in op.levels]
+
+
+def force_layout(monkeypatch, shared: bool | None) -> None:
+    """Store every matrix shared (True) or split (False), or whichever takes fewer bytes (None)."""
+    from sssbake.pipeline.core import scatter_operator as module
+
+    if shared is not None:
+        monkeypatch.setattr(module, "_shared_layout", lambda *args: shared)
 
 
 @pytest.mark.parametrize("model", ["montecarlo", "dipole"])
@@ -177,22 +197,38 @@ def test_chunked_assembly_gives_the_same_matrices(monkeypatch):
     whole = scatter_operator(x, f, normals, p, options)
     monkeypatch.setattr(module, "ENTRIES_PER_CHUNK", 997)
     chunked = scatter_operator(x, f, normals, p, options)
-    for a, b in zip([whole.near] + [level.matrix for level in whole.levels],
-                    [chunked.near] + [level.matrix for level in chunked.levels]):
-        for name in ("data", "indices", "indptr"):
+    assert {a.shared for a in matrices(whole)} == {True, False}  # both layouts built in blocks
+    for a, b in zip(matrices(whole), matrices(chunked)):
+        for name in ("data", "indices", "indptr", "within"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     signal = lit(normals, k=9)
     q32 = chunked.apply(signal, out=np.empty((3, len(x), 9), dtype=np.float32))
     np.testing.assert_array_equal(q32, chunked.apply(signal).astype(np.float32))
 
 
-def test_compiled_entries_equal_their_numpy_definitions():
+def row_entries(m, c: int, j: int, d: np.ndarray, radius: np.ndarray, columns: np.ndarray, values: np.ndarray):
+    """Checks channel c's row j of a `ChannelRows` against its candidate sources' distances d,
+    columns and values: the sources within the channel's radius, in candidate order, or in a
+    shared layout those within the largest radius, 0.0 beyond the channel's."""
+    ptr, stored = m.channel(c)
+    got = slice(ptr[j], ptr[j + 1])
+    keep = d <= (radius.max() if m.shared else radius[c])
+    np.testing.assert_array_equal(m.indices[got], columns[keep])
+    np.testing.assert_allclose(stored[got], np.where(d <= radius[c], values, 0.0)[keep], rtol=1e-9)
+    if m.shared:
+        assert m.within[c, j] == np.count_nonzero(d <= radius[c])
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_compiled_entries_equal_their_numpy_definitions(monkeypatch, shared):
     # The compiled build (`scatter_kernels`) against the formulation it replaced: each row's
     # exact pairs in the order of its cells' vertex runs, with `NearField.weights`, and each
     # cluster term Rd(D) + ½ tr(H Σ) from the kernel table, in numpy; same pattern, values
-    # within float32 rounding. A bumpy sphere, so that sources sit off each other's planes.
+    # within float32 rounding; in either layout. A bumpy sphere, so that sources sit off each
+    # other's planes; ketchup, whose blue radius leaves out some of the exact pairs.
     from sssbake.pipeline.core.scatter_operator import scatter_plan
 
+    force_layout(monkeypatch, shared)
     x, f, _, normals = sphere(12.0, subdivisions=3)
     x = x * (1.0 + 0.04 * np.sin(3.0 * x[:, :1]))
     normals = area_weighted_normals(x, f)
@@ -209,11 +245,9 @@ def test_compiled_entries_equal_their_numpy_definitions():
                                   for g in plan.near_lists[plan.near_ptr[cell]:plan.near_ptr[cell + 1]]])
         d = np.linalg.norm(x[plan.order][sources] - x[plan.order][o], axis=1)
         weights = field.weights(np.full(len(sources), o), sources)
+        assert np.any(d > r.min()) and np.all(d <= r.max())  # the padded 0.0 are checked, too
         for c in range(3):
-            row = c * len(rows) + j
-            got = slice(near.indptr[row], near.indptr[row + 1])
-            np.testing.assert_array_equal(near.indices[got], sources[d <= r[c]])
-            np.testing.assert_allclose(near.data[got], weights[d <= r[c], c], rtol=1e-12)
+            row_entries(near, c, j, d, r, sources, weights[:, c])
     table = plan.builder.table
     xt = plan.positions.T
     assert levels
@@ -230,41 +264,38 @@ def test_compiled_entries_equal_their_numpy_definitions():
             at = (0.5 * np.log(d2) - table.log_lo) / table.step
             node = np.clip(at.astype(np.int64), 0, table.nodes - 2)
             w = at - node
+            assert far.matrix.width == far.matrix.stride == m
             for c in range(3):
-                keep = np.sqrt(d2) <= r[c]
                 terms = table.value[c][:, node] + w * table.slope[c][:, node]  # (3 terms, entries)
                 kernel = terms[0] + terms[1] * radial + terms[2] * clusters.trace[s]
-                row = c * len(rows) + j
-                got = slice(far.matrix.indptr[row], far.matrix.indptr[row + 1])
-                np.testing.assert_array_equal(far.matrix.indices[got], c * m + s[keep])
-                np.testing.assert_allclose(far.matrix.data[got], kernel[keep], rtol=1e-9)
+                row_entries(far.matrix, c, j, np.sqrt(d2), r, s, kernel)
 
 
 def scipy_apply(op, signal: np.ndarray) -> np.ndarray:
-    """`ScatterOperator.apply` as scipy products (the form the compiled one replaced): near @ e,
-    plus each level's matrix @ its clusters' moments (numpy's reduceat), clamped at 0."""
+    """`ScatterOperator.apply` as scipy products (the form the compiled one replaced): per channel
+    near_c @ e, plus each level's matrix_c @ its clusters' moments of channel c (numpy's
+    reduceat), clamped at 0."""
     n, dtype = len(op.order), op.near.dtype
     e = signal[op.order]
-    q = op.near @ e.astype(dtype)
-    for f in op.levels:
-        moments = np.concatenate([np.add.reduceat(e * op.source_area[c][:, None], f.starts, axis=0)
-                                  for c in range(3)]).astype(dtype)
-        q += f.matrix @ moments
     out = np.empty((3, n, signal.shape[1]), dtype)
-    out[:, op.order] = q.reshape(3, n, -1)
+    for c in range(3):
+        q = channel_csr(op.near, c) @ e.astype(dtype)
+        for f in op.levels:
+            q += channel_csr(f.matrix, c) @ np.add.reduceat(e * op.source_area[c][:, None], f.starts, axis=0).astype(dtype)
+        out[c, op.order] = q
     return np.maximum(out, 0.0) if np.all(signal >= 0) else out
 
 
 @pytest.mark.parametrize("float32, threads, block", [(True, 2, 32), (True, 2, 3), (False, 1, 4), (True, 3, 5)])
 def test_compiled_apply_equals_the_scipy_products(float32, threads, block):
-    # `scatter_kernels.csr_rows_product` sums each row as scipy's products do, `cluster_moments`
-    # the moments in vertex order (numpy's reduceat pairwise): equal to the rounding of the moments,
-    # in one pass or several (k > threads · block), on any number of threads, and for signals of
-    # any sign (no clamp).
+    # `scatter_kernels.csr_rows_product` and `shared_rows_product` sum each row as scipy's
+    # products do, `cluster_moments` the moments in vertex order (numpy's reduceat pairwise):
+    # equal to the rounding of the moments, in one pass or several (k > threads · block), on any
+    # number of threads, and for signals of any sign (no clamp).
     x, f, _, normals = sphere(25.0)
     op = scatter_operator(x, f, normals, profile_for(preset("marble")),
                           ScatterOptions(float32=float32, threads=threads, block=block))
-    assert len(op.levels) >= 2
+    assert len(op.levels) >= 2 and {m.shared for m in matrices(op)} == {True, False}
     rtol = 1e-6 if float32 else 1e-13
     signal = lit(normals, k=23)
     for s in (signal, signal - 0.3):
@@ -274,29 +305,63 @@ def test_compiled_apply_equals_the_scipy_products(float32, threads, block):
     assert np.all(got == 0) == np.all(ref == 0) and np.any(got < 0)
 
 
-def test_compiled_products_and_moments_equal_their_numpy_definitions():
-    from sssbake.pipeline.core.scatter_kernels import cluster_moments, csr_rows_product
+@pytest.mark.parametrize("shared", [True, False])
+def test_compiled_products_and_moments_equal_their_numpy_definitions(monkeypatch, shared):
+    from sssbake.pipeline.core.scatter_kernels import cluster_moments
 
+    force_layout(monkeypatch, shared)
     x, f, _, normals = sphere(25.0)
     for dtype in (np.float32, np.float64):
         op = scatter_operator(x, f, normals, profile_for(preset("marble")),
                               ScatterOptions(float32=dtype == np.float32))
         e = lit(normals, k=11)[op.order] - 0.2
+        sources = [e.astype(dtype)]
         for level in op.levels:
             got = np.empty((3 * len(level.starts), 11))
             cluster_moments(e, op.source_area, level.starts, got)
             ref = np.concatenate([np.add.reduceat(e * op.source_area[c][:, None], level.starts, axis=0)
                                   for c in range(3)])
             np.testing.assert_allclose(got, ref, rtol=1e-13, atol=1e-15 * np.abs(ref).max())
-            # the products: bit for bit scipy's, written or added
-            m = level.matrix
-            moments = ref.astype(dtype)
-            y = np.ones((m.shape[0], 11), dtype)
-            csr_rows_product(0, m.shape[0], m.indptr, m.indices, m.data, moments, y, False)
-            np.testing.assert_array_equal(y, m @ moments)
-            csr_rows_product(5, m.shape[0], m.indptr, m.indices, m.data, moments, y, True)
-            np.testing.assert_array_equal(y[5:], (m @ moments)[5:] * 2)
-            np.testing.assert_array_equal(y[:5], (m @ moments)[:5])
+            sources.append(ref.astype(dtype))
+        # the products, near (one signal) and far (channel c's moments): bit for bit scipy's per
+        # channel, written or added
+        for m, x_all in zip(matrices(op), sources):
+            assert m.shared == shared
+            t = m.rows
+            want = np.concatenate([channel_csr(m, c) @ x_all[c * m.stride:c * m.stride + m.width] for c in range(3)])
+            y = np.ones((3 * t, 11), dtype)
+            m.product(0, t, x_all, y, False)
+            np.testing.assert_array_equal(y, want)
+            m.product(5, t, x_all, y, True)
+            first = np.isin(np.arange(3 * t) % t, np.arange(5))  # each channel's first 5 rows
+            np.testing.assert_array_equal(y[~first], want[~first] * 2)
+            np.testing.assert_array_equal(y[first], want[first])
+
+
+def test_layout_changes_no_bit_of_q(monkeypatch):
+    # Every matrix shared, every one split, or each the smaller (as built): a shared layout's 0.0
+    # beyond a channel's radius add nothing to the products, and `_limit_energy` sums each
+    # channel in the same chunks of its own entries, so source_area and q are equal bit for bit.
+    # skin2: its blue radius is ~1/3 of red's, so the padding is most of a shared level.
+    from sssbake.pipeline.core import scatter_operator as module
+
+    x, f, _, _ = sphere(25.0)
+    x = x * (1.0 + 0.15 * np.sin(0.2 * x[:, :1]) * np.cos(0.16 * x[:, 1:2]))  # bumps: many sources limited
+    area, normals = vertex_areas(x, f), area_weighted_normals(x, f)
+    p = profile_for(preset("skin2"))
+    signal = lit(normals, k=9)
+    monkeypatch.setattr(module, "ENTRIES_PER_CHUNK", 997)  # many chunks: their bounds would show
+    ops = []
+    for shared in (None, True, False):
+        force_layout(monkeypatch, shared)
+        ops.append(scatter_operator(x, f, normals, p, ScatterOptions(threads=2)))
+    assert {m.shared for m in matrices(ops[0])} == {True, False}
+    assert ops[1].nbytes > ops[0].nbytes and ops[2].nbytes > ops[0].nbytes
+    assert np.any(ops[0].source_area < area[ops[0].order])  # the energy limit scaled sources
+    q = ops[0].apply(signal)
+    for op in ops[1:]:
+        assert np.array_equal(op.source_area, ops[0].source_area)
+        assert np.array_equal(op.apply(signal), q)
 
 
 def expand_runs(pairs: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:

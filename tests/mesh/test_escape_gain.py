@@ -66,3 +66,29 @@ def test_the_compiled_walk_draws_the_random_numbers_the_numpy_walk_did():
     assert g.escape == (0.7212670992271769, 0.32632607062359126, 0.15494918823242188)
     assert g.plane == (0.4576187130636029, 0.22844477836213373, 0.124908447265625)
     assert g.behind == (8207, 4709, 1389)
+
+
+def test_the_stage_gathers_on_the_field_built_beside_its_walk_as_on_its_own():
+    """`bake.stages.escape_gain_stage` builds the gather's near field before the walk (its disc
+    table on threads beside it) and hands it to the gather: the same bits as the walk and the gather
+    one after the other, each building what it needs (a 10 mm skin1 ball lets out more than
+    `MIN_BEHIND` photons behind)."""
+    from sssbake.pipeline.bake.stages import EscapeGainParams, escape_gain_stage
+    from sssbake.pipeline.core.back_share import MIN_BEHIND, gathered_shares, object_gains
+    from sssbake.pipeline.core.profile import profile_for
+    from sssbake.pipeline.core.surface import Surface
+
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=5.0)
+    x = np.asarray(ball.vertices, dtype=np.float64)
+    areas = np.bincount(ball.faces.ravel(), weights=np.repeat(ball.area_faces / 3.0, 3), minlength=len(x))
+    surface = Surface(x, np.asarray(ball.faces, dtype=np.int64), np.asarray(ball.vertex_normals), areas, ())
+    material = preset("skin1")
+    walk, gain, back = escape_gain_stage(surface, EscapeGainParams(material, 1.0))
+    alone = escape_gain(x, ball.faces, 1.0, material)
+    assert walk == alone and max(alone.behind) >= MIN_BEHIND
+    front, behind = gathered_shares(x, surface.faces, surface.normals, areas, profile_for(material))
+    assert (gain, back) == object_gains(alone.front, alone.back, alone.behind, front, behind)
+    assert back != (1.0, 1.0, 1.0)  # the gather ran
+    # an open surface is not walked, and nothing is built for it
+    open_surface = Surface(x, surface.faces[1:], surface.normals, areas, ())
+    assert escape_gain_stage(open_surface, EscapeGainParams(material, 1.0))[1:] == ((1.0, 1.0, 1.0), (1.0, 1.0, 1.0))

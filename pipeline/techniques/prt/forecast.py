@@ -39,7 +39,7 @@ class PrtForecast:
         Building the gather and gathering the K directions (the plan's time, the visibility and
         the compression not included).
     entries : int
-        The gather's stored entries.
+        The gather's stored values (`ScatterOperator.nnz`).
     directions : int
         K.
     gather : ScatterForecast

@@ -1,9 +1,15 @@
 """Solves with A − σI for the shift-invert bands of `manifold_harmonics`, one factor per shift.
 
 A − σI is symmetric and, past the first band, indefinite. CHOLMOD's simplicial LDLᵀ (through
-`cvxopt.cholmod`) factors it without pivoting, on one fill-reducing ordering (AMD) for every
-shift since the pattern does not change, and its solves take 0.4× SuperLU's on a column ordering
-(150k-vertex dragon: 10.3 against 25.4 ms; benchmarks/README.md#spectral-eigensolve). Without
+`cvxopt.cholmod`) factors it without pivoting, on one fill-reducing ordering for every shift since
+the pattern does not change, and its solves take 0.4× SuperLU's on a column ordering (150k-vertex
+dragon: 10.3 against 25.4 ms; benchmarks/README.md#spectral-eigensolve). The ordering is
+CHOLMOD's AMD, or METIS's nested dissection (`pymetis`; cvxopt's CHOLMOD is built without it)
+where that fills L less. AMD fills L with 19-21 entries a vertex on scanned and simplified meshes
+(50k-400k) but 32-46 on subdivided ones, whose vertices mostly have six neighbours; there METIS's
+fills 27-34 (800k dragon: 27.0M entries instead of 36.5M, so the solves and factors that the
+eigensolve repeats take 0.77× and 0.47× the time), elsewhere slightly more. METIS costs ~6 µs a
+vertex, so it is asked only where more than `REGULAR` of the vertices have six neighbours. Without
 pivoting a pivot can vanish or grow: a factor that CHOLMOD refuses, or whose solve of a test
 vector has a backward error above `BACKWARD_ERROR`, is replaced by SuperLU's with partial
 pivoting, so every shift gets a factor as stable as before.
@@ -22,6 +28,9 @@ import scipy.sparse.linalg as sla
 #: dragons whatever the conditioning (the first shift, just below λ = 0, makes A − σI nearly
 #: singular: there even SuperLU's plain relative residual ‖r‖ / ‖b‖ is ~1e-5).
 BACKWARD_ERROR = 1e-12
+#: Share of vertices with six neighbours above which METIS's ordering is tried besides AMD (the
+#: module docstring; measured shares: 0.23-0.38 scanned and simplified, 0.83-0.96 subdivided).
+REGULAR = 0.5
 
 
 class ShiftedFactor:
@@ -43,6 +52,17 @@ class ShiftedFactor:
         self._rows = cvxopt.matrix(np.r_[lower.row, np.arange(n)].astype(np.int64))
         self._cols = cvxopt.matrix(np.r_[lower.col, np.arange(n)].astype(np.int64))
         self._values = lower.data.astype(np.float64)
+        # the graph of the pattern CHOLMOD gets; given METIS's ordering of it, CHOLMOD analyses that
+        # and its own AMD and keeps whichever fills L less
+        off = lower.row != lower.col
+        rows, cols = np.r_[lower.row[off], lower.col[off]], np.r_[lower.col[off], lower.row[off]]
+        self._order = None
+        if np.mean(np.bincount(rows, minlength=n) == 6) > REGULAR:
+            import pymetis
+
+            graph = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+            order, _ = pymetis.nested_dissection(pymetis.CSRAdjacency(graph.indptr, graph.indices))
+            self._order = cvxopt.matrix(np.array(order, dtype=np.int64))
         self._symbolic = None
         self._probe = np.random.default_rng(0).standard_normal(n)
 
@@ -57,7 +77,8 @@ class ShiftedFactor:
         cholmod.options["supernodal"] = 0  # simplicial: LDLᵀ (the supernodal factor is LLᵀ only)
         try:
             if self._symbolic is None:
-                self._symbolic = cholmod.symbolic(m, uplo="L")
+                ordering = {} if self._order is None else {"p": self._order}
+                self._symbolic = cholmod.symbolic(m, uplo="L", **ordering)
             cholmod.numeric(m, self._symbolic)
         except ArithmeticError:  # a zero pivot: this shift's factor needs pivoting
             return self._pivoted(shift)
