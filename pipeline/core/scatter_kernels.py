@@ -495,6 +495,17 @@ def far_fill(j0, j1, rows, keys, ptr, lists, xt, centroid, spread, trace, radius
             _put(shared, t, j, d, radius, s, kernel, indptr, at, indices, data)
 
 
+@_inline
+def _put_row(s, y, r, add):
+    """y[r] = s, or y[r] += s where `add`."""
+    if add:
+        for c in range(len(s)):
+            y[r, c] += s[c]
+    else:
+        for c in range(len(s)):
+            y[r, c] = s[c]
+
+
 @_jit
 def csr_rows_product(r0, r1, indptr, indices, data, x, y, add):
     """Rows r0..r1 - 1 of the sparse product A x, A in CSR (indptr, indices, data) and x (width, K)
@@ -513,23 +524,7 @@ def csr_rows_product(r0, r1, indptr, indices, data, x, y, add):
             row = x[indices[jj]]
             for c in range(k):
                 s[c] += a * row[c]
-        if add:
-            for c in range(k):
-                y[r, c] += s[c]
-        else:
-            for c in range(k):
-                y[r, c] = s[c]
-
-
-@_inline
-def _put_row(s, y, r, add):
-    """y[r] = s, or y[r] += s where `add`."""
-    if add:
-        for c in range(len(s)):
-            y[r, c] += s[c]
-    else:
-        for c in range(len(s)):
-            y[r, c] = s[c]
+        _put_row(s, y, r, add)
 
 
 @_jit
