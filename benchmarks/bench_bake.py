@@ -9,10 +9,11 @@ and the process's resident high-water mark after it.
 ``--sweep``: the dragon of ../shared at each size (10k and 150k simplified from the 50k and 200k
 files into a temporary folder, `closed_simplified`; 50k, 200k and 800k the files themselves),
 baked with each technique alone and all together, each bake in a fresh child process so that its
-memory is its own. Per bake and stage: wall seconds (the atlas's overlap the stages that do not
-read it), the peak resident memory of the process during the stage and the stage's own part of it
-(that peak less the resident memory at the stage's start; none for the atlas, whose memory is its
-xatlas child's); per bake the total, the process's peak and the peak of its process tree (with
+memory is its own. Per bake and stage: wall seconds, the peak resident memory of the process during
+the stage and the stage's own part of it (that peak less the resident memory at the stage's start);
+the texel stages (thickness, atlas, thickness map) are made in a child beside the others
+(`bake.beside`): their seconds are what the bake waited for them, the child's own beside them, and
+no memory of their own (the process tree's peak counts the child and xatlas); per bake the total, the process's peak and the peak of its process tree (with
 xatlas and the glTF validator's node; sampled every 0.1 s, so a short spike can be missed). At the
 end, per set, the exponents b and d of time ≈ a·n^b and memory ≈ c·n^d fitted in log-log over the
 sizes that ran (n: the file's vertices); the total's memory is the bake's part of the process peak
@@ -31,7 +32,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -40,6 +40,7 @@ import numpy as np
 import trimesh
 
 from sssbake.pipeline.bake.asset import bake_asset
+from sssbake.pipeline.bake.beside import allow_fork
 from sssbake.pipeline.bake.asset_process import tree_rss
 from sssbake.pipeline.bake.cache import StageCache
 from sssbake.pipeline.bake.stages import StageRunner
@@ -122,10 +123,14 @@ def _reset_peak() -> None:
 def child_bake(asset: Path, options) -> dict:
     """Bake `asset` (no cache) in this process, each stage's peak resident memory measured apart.
 
-    The kernel's high-water mark is reset as each stage on the main thread starts and read as it
-    ends; the peak between stages is read before each reset, so `process_peak_mb` is the bake's
-    whole peak. A stage on another thread (the atlas) gets no memory figures.
+    The process is fresh, as a bake's worker is, so its texel stages (thickness, atlas, thickness
+    map) are made in a child beside the others (`bake.beside`): they get their seconds in that
+    child (``beside_seconds``) and what the bake waited for them, no memory figures of their own
+    (the process tree's peak counts the child). The kernel's high-water mark is reset as each stage
+    on the main thread starts and read as it ends; the peak between stages is read before each
+    reset, so `process_peak_mb` is the bake's whole peak.
     """
+    allow_fork()
     stages: dict[str, dict] = {}
     peak = _status_mb("VmHWM")  # imports
     before = _status_mb("VmRSS")
@@ -134,13 +139,6 @@ def child_bake(asset: Path, options) -> dict:
     @contextmanager
     def measured(runner, rec):
         nonlocal peak
-        if threading.current_thread() is not threading.main_thread():
-            # the atlas, on a thread that waits for xatlas while the main thread runs other stages: the
-            # process's memory is theirs, the atlas's is its child's (`xatlas_peak_mb`)
-            with measure(runner, rec):
-                yield
-            stages.setdefault(rec.name, {"peak_mb": None, "own_mb": None})
-            return
         peak = max(peak, _status_mb("VmHWM"))
         start = _status_mb("VmRSS")
         _reset_peak()
@@ -161,6 +159,8 @@ def child_bake(asset: Path, options) -> dict:
         StageRunner._measure = measure
     r = result.report
     for name, s in r["stages"].items():
+        if "beside_seconds" in s:
+            stages[name] = {"peak_mb": None, "own_mb": None, "beside_seconds": s["beside_seconds"]}
         if name in stages:
             stages[name]["seconds"] = s["seconds"]
     return {
@@ -270,10 +270,11 @@ def _print_bake(set_name: str, bake: dict) -> None:
     print(f"  {set_name}: total {bake['seconds']:.2f} s ({bake['process_seconds']:.1f} s with the process start), "
           f"process peak {bake['process_peak_mb']:.0f} MB ({bake['rss_before_mb']:.0f} MB before the bake), "
           f"process tree peak {bake['tree_peak_mb']:.0f} MB sampled (xatlas {bake['xatlas_peak_mb']} MB)")
-    print(f"    {'stage':<14}{'seconds':>9}{'peak MB':>10}{'own MB':>9}")
+    print(f"    {'stage':<14}{'seconds':>9}{'peak MB':>10}{'own MB':>9}  (beside: the child's seconds, and the wait)")
     for name, s in bake["stages"].items():
         mb = (f"{v:>{w}.0f}" if v is not None else f"{'-':>{w}}" for v, w in ((s["peak_mb"], 10), (s["own_mb"], 9)))
-        print(f"    {name:<14}{s['seconds']:>9.2f}{''.join(mb)}", flush=True)
+        beside = f"  beside {s['beside_seconds']:.2f} s" if "beside_seconds" in s else ""
+        print(f"    {name:<14}{s['seconds']:>9.2f}{''.join(mb)}{beside}", flush=True)
     for w in bake["warnings"]:
         print(f"    warning: {w}")
 
@@ -288,7 +289,8 @@ def _fits(table: dict, sets: list[str]) -> dict:
                           if stage in b["stages"]]
                   for stage in dict.fromkeys(name for _, b in ran for name in b["stages"])}
         # the atlas's memory is its xatlas child's
-        series["xatlas"] = [(n, b["stages"]["atlas"]["seconds"], b["xatlas_peak_mb"]) for n, b in ran
+        series["xatlas"] = [(n, b["stages"]["atlas"].get("beside_seconds", b["stages"]["atlas"]["seconds"]),
+                             b["xatlas_peak_mb"]) for n, b in ran
                             if b["xatlas_peak_mb"]]
         series["total"] = [(n, b["seconds"], b["process_peak_mb"] - b["rss_before_mb"]) for n, b in ran]
         fits[set_name] = {stage: {"vertices": [n for n, _, _ in pts],

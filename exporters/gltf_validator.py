@@ -14,7 +14,7 @@ import re
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -186,19 +186,26 @@ def find_validator() -> Path:
     ------
     ValidatorUnavailable
     """
-    candidates = []
-    env = os.environ.get(ENV_VAR)
-    if env:
-        candidates.append(Path(env))
-    candidates += [Path(__file__).resolve().parents[1] / "node_modules", Path.cwd() / "node_modules"]
-    global_root = _npm_root_global()
-    if global_root:
-        candidates.append(global_root)
-    for folder in candidates:
+    looked = []
+    for folder in _validator_folders():
         if (folder / "gltf-validator" / "package.json").is_file():
             return folder
-    looked = ", ".join(str(c) for c in candidates)
-    raise ValidatorUnavailable(f"the npm package gltf-validator was not found (looked in {looked}); {_INSTALL}")
+        looked.append(str(folder))
+    raise ValidatorUnavailable(f"the npm package gltf-validator was not found (looked in {', '.join(looked)}); {_INSTALL}")
+
+
+def _validator_folders() -> Iterator[Path]:
+    """Where the validator may be, in order: ``$SSSBAKE_GLTF_VALIDATOR``, the repository's and the
+    working folder's ``node_modules``, npm's global root. The last is asked only when the others
+    fail: ``npm root -g`` is a node process, ~0.15 s of every bake that a local install spares."""
+    env = os.environ.get(ENV_VAR)
+    if env:
+        yield Path(env)
+    yield Path(__file__).resolve().parents[1] / "node_modules"
+    yield Path.cwd() / "node_modules"
+    global_root = _npm_root_global()
+    if global_root:
+        yield global_root
 
 
 def _node() -> str:

@@ -26,23 +26,18 @@ from sssbake.exporters.usd import write_usdc
 from sssbake.pipeline.bake.cache import StageCache, stage_key
 from sssbake.pipeline.bake.fallback import make_fallback
 from sssbake.pipeline.bake.stages import (
-    AtlasParams,
     EscapeGainParams,
     LoadParams,
     PilotParams,
     StageRunner,
     TechniqueParams,
-    ThicknessMapParams,
-    ThicknessParams,
-    atlas_stage,
     escape_gain_stage,
     load_stage,
     pilot_stage,
     technique_stage,
-    thickness_map_stage,
-    thickness_stage,
 )
 from sssbake.pipeline.bake.staging import commit, staging
+from sssbake.pipeline.bake.texel_stages import TexelStages, miss_cap
 from sssbake.pipeline.core.errors import AssetError
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.surface import Surface
@@ -136,7 +131,8 @@ def _png_gray(values: np.ndarray) -> bytes:
     """8-bit greyscale PNG of `values` in [0, 1] (H, W): G reads the grey level in every sampler."""
     img = PILImage.fromarray(np.round(np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8), mode="L")
     buf = io.BytesIO()
-    img.save(buf, format="PNG", optimize=True)
+    # zlib's default level: ``optimize`` (level 9) took 0.30 s of the 50k dragon's bake for a 2 % smaller file.
+    img.save(buf, format="PNG", compress_level=6)
     return buf.getvalue()
 
 
@@ -201,6 +197,7 @@ class _Baking:
     used: set[str] = field(default_factory=set)  # techniques some mesh or material ran
     lambert_checks: list[dict] = field(default_factory=list)  # the pilot against best-fit Lambert (`lambert_record`)
     started: float = field(default_factory=time.monotonic)  # against asset_timeout_s (`_budget`)
+    texels: TexelStages | None = None  # the meshes' thickness, atlas and thickness map (`texel_stages`)
 
     def __post_init__(self) -> None:
         self.meshes, self.images, self.textures = (list(self.scene.meshes), list(self.scene.images),
@@ -264,8 +261,15 @@ def bake_asset(
     split, origin = _split_shared_materials(assignment.scene, translucent)
     b = _Baking(runner, options, split, {i: assignment.materials.get(o) for i, o in enumerate(origin)}, mm_per_unit,
                 warnings)
-    for mi in range(len(split.meshes)):
-        _bake_mesh(b, mi, clean.surfaces[mi], stage_key(k_clean, "mesh", 0, {"mesh": mesh_origin[mi]}), path, picks)
+    keys = [stage_key(k_clean, "mesh", 0, {"mesh": mesh_origin[mi]}) for mi in range(len(split.meshes))]
+    b.texels = TexelStages.start(runner, options, STAGE_VERSIONS, {
+        mi: (split.meshes[mi], clean.surfaces[mi], keys[mi]) for mi in range(len(split.meshes))
+        if _scattering_materials(b, mi)})
+    try:
+        for mi in range(len(split.meshes)):
+            _bake_mesh(b, mi, clean.surfaces[mi], keys[mi], path, picks)
+    finally:
+        b.texels.close()
     _bake_materials(b)
     for t in TECHNIQUES:
         if t.name not in b.used:
@@ -404,22 +408,20 @@ def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path,
     """Mesh `mi`: its sizes and, when it scatters, its general stages, the techniques chosen for it and
     its baked primitives, thickness texture and scattering materials.
 
-    The atlas is made after the plan, not on a thread beside it: with a proxy's charts carried back
-    most of it is numpy in this process, which waited on the plan's compiled loops for the GIL
-    (the dragon's atlas 7.0 s on a thread, 3.7 s here, its bake no slower:
-    benchmarks/README.md#atlas-reuse).
+    The thickness, atlas and thickness map come from a child that made them beside the escape gain
+    and the plan where the worker could fork one (`texel_stages`), else they are made here, in turn.
     """
     mesh = b.scene.meshes[mi]
     mesh_mm = b.mm_per_unit * instance_scale(b.scene, mi, b.warnings)
     b.scale_mm[mi] = mesh_mm
-    diag_mm = _miss_cap(surface) * mesh_mm
-    mats = sorted({p.material for p in mesh.primitives if b.material_of.get(p.material) is not None})
+    diag_mm = miss_cap(surface) * mesh_mm
+    mats = _scattering_materials(b, mi)
     for m in mats:  # each mesh has its own copy of its materials (`_split_shared_materials`)
         b.material_of[m] = _with_escape_gain(b, surface, mesh_key, b.material_of[m], mesh_mm)
     b.sizes[mesh.name] = [_size_report(mesh.name, diag_mm, b.material_of[m], b.warnings) for m in mats]
     if not mats:
         return
-    thick = _thickness(b, mi, surface, mesh_key)
+    thick = _thickness(b, mi, surface)
     if b.auto:
         chosen, mesh_options = _plan_mesh(b, mi, mats, surface, thick, mesh_mm, mesh_key, path, picks)
     else:
@@ -431,32 +433,23 @@ def _bake_mesh(b: _Baking, mi: int, surface: Surface, mesh_key: str, path: Path,
     b.used |= chosen
     results = _bake_mesh_techniques(b, mi, mats, surface, None, mesh_mm, mesh_key, chosen, mesh_options)
     # after the plan: the input's UVs may serve unless kernels, which need gutters, were chosen
-    atlas, k_atlas = _atlas(b, mi, mesh_key, "kernels" not in chosen)
-    tmap, _ = b.runner.run("thickness_map", STAGE_VERSIONS["thickness_map"], mesh_key,
-                           ThicknessMapParams(_atlas_params(b.options, atlas.input_uv_set is not None),
-                                              b.options.thickness_rays), thickness_map_stage,
-                           atlas, [(p.positions, p.normals) for p in mesh.primitives], surface, _miss_cap(surface))
-    stages = _MeshStages(atlas, k_atlas, thick, tmap)
+    atlas, k_atlas = _atlas(b, mi, "kernels" not in chosen)
+    stages = _MeshStages(atlas, k_atlas, thick, b.texels.thickness_map(mi, atlas))
     results |= _bake_mesh_techniques(b, mi, mats, surface, stages, mesh_mm, mesh_key, chosen, mesh_options)
     _baked_mesh(b, mi, mats, surface, stages, mesh_mm, results)
 
 
-def _atlas_params(options: BakeOptions, reuse_input: bool) -> AtlasParams:
-    return AtlasParams(options.atlas_resolution, options.atlas_padding, reuse_input)
+def _scattering_materials(b: _Baking, mi: int) -> list[int]:
+    """The scattering materials of mesh `mi`'s primitives."""
+    return sorted({p.material for p in b.scene.meshes[mi].primitives if b.material_of.get(p.material) is not None})
 
 
-def _miss_cap(surface: Surface) -> float:
-    """Where a thickness ray that leaves the mesh is capped: the bounding-box diagonal (file units)."""
-    return float(np.linalg.norm(np.ptp(surface.positions, axis=0)))
-
-
-def _atlas(b: _Baking, mi: int, mesh_key: str, reuse_input: bool) -> tuple[Atlas, str]:
+def _atlas(b: _Baking, mi: int, reuse_input: bool) -> tuple[Atlas, str]:
     """Mesh `mi`'s atlas (the input's UVs when `reuse_input` and they pass) and its key, recorded
     in the report's ``atlas`` block: which UVs (``uvs``: TEXCOORD_n, proxy or charted) and why
     the others were refused."""
     mesh = b.scene.meshes[mi]
-    atlas, k_atlas = b.runner.run("atlas", STAGE_VERSIONS["atlas"], mesh_key, _atlas_params(b.options, reuse_input),
-                                  atlas_stage, [(p.positions, p.faces, p.uvs) for p in mesh.primitives])
+    atlas, k_atlas = b.texels.atlas(mi, reuse_input)
     b.atlases[mesh.name] = {
         "uvs": atlas.source, "refused": list(atlas.notes),
         "width": atlas.width, "height": atlas.height, "charts": atlas.chart_count, "jittered": atlas.jittered,
@@ -478,12 +471,10 @@ def _with_escape_gain(b: _Baking, surface: Surface, mesh_key: str, material: Mat
     return replace(material, escape_gain=tuple(float(x) for x in gain), back_gain=tuple(float(x) for x in back))
 
 
-def _thickness(b: _Baking, mi: int, surface: Surface, mesh_key: str) -> ThicknessResult:
+def _thickness(b: _Baking, mi: int, surface: Surface) -> ThicknessResult:
     """Per-vertex thickness of mesh `mi`'s welded `surface` (warnings naming the rays that met no
     surface, started outside or found no inside, and the surface's defects)."""
-    cap = _miss_cap(surface)
-    thick, _ = b.runner.run("thickness", STAGE_VERSIONS["thickness"], mesh_key, ThicknessParams(b.options.thickness_rays),
-                            thickness_stage, surface, [p.normals for p in b.scene.meshes[mi].primitives], cap)
+    thick = b.texels.thickness(mi)
     b.warnings.extend(f"mesh {b.scene.meshes[mi].name!r} {line}" for line in miss_warnings(thick, surface.faces))
     return thick
 

@@ -43,6 +43,7 @@ from __future__ import annotations
 import contextlib
 import json
 import multiprocessing
+import multiprocessing.connection
 import os
 import pickle
 import select
@@ -61,6 +62,7 @@ from pathlib import Path
 import psutil
 
 from sssbake.exporters.atomic import temporary_of, temporary_target
+from sssbake.pipeline.bake.beside import allow_fork
 from sssbake.pipeline.bake.staging import holds_any, is_staging
 from sssbake.pipeline.mesh.parent_death import die_with_parent, release_fork_server
 
@@ -249,7 +251,12 @@ def supervise(tasks: Sequence[Task], slots: int = 1, on_done: Callable[[int, dic
                         live.add(running[slot])
                 if not running:
                     return records  # type: ignore[return-value]
-            time.sleep(POLL_S)
+            # the next look at once when a child ends (its record is then waiting), else in POLL_S
+            sentinels = [c.proc.sentinel for c in running.values() if isinstance(c.proc, multiprocessing.process.BaseProcess)]
+            if sentinels:
+                multiprocessing.connection.wait(sentinels, timeout=POLL_S)
+            else:
+                time.sleep(POLL_S)
     except BaseException:  # a stop signal, Ctrl-C, a bug: no orphans baking on
         with signals_held():
             for child in running.values():
@@ -590,6 +597,7 @@ def child_main(task: Task, tmp: str, slot: int, slots: int, supervisor: int) -> 
     os.environ["TMPDIR"] = tmp
     tempfile.tempdir = tmp
     pin_to_share(slot, slots)
+    allow_fork()  # nothing has started a thread pool here yet: the bake may fork a child beside it (`bake.beside`)
     record = run_job(task.job, task.config, task.overrides, task.cache_dir)
     part = Path(tmp) / "record.json.part"
     try:

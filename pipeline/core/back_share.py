@@ -67,7 +67,7 @@ def behind_share(mu: np.ndarray) -> np.ndarray:
 
 
 def gathered(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, profile: Profile,
-             points: np.ndarray, field: NearField | None = None) -> tuple[np.ndarray, np.ndarray]:
+             points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """G and B (module docstring) at the vertices `points`.
 
     Parameters
@@ -78,9 +78,6 @@ def gathered(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, p
         Unit vertex normals.
     profile : Profile
     points : (k,) int64
-    field : NearField, optional
-        ``NearField.build`` of the first four, made already (the escape gain's stage builds it
-        before its walk, so that its disc table is made beside the walk).
 
     Returns
     -------
@@ -89,7 +86,7 @@ def gathered(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, p
     x = np.ascontiguousarray(positions_mm, dtype=np.float64)
     normals = np.ascontiguousarray(normals, dtype=np.float64)
     points = np.ascontiguousarray(points, dtype=np.int64)
-    field = NearField.build(x, faces, normals, profile) if field is None else field
+    field = NearField.build(x, faces, normals, profile)
     radius = radius_for_energy(ENERGY_DROPPED, profile)
     h_grid = behind_share(np.linspace(-1.0, 1.0, _MU_NODES))
     total, behind = np.zeros((len(points), 3)), np.zeros((len(points), 3))
@@ -109,14 +106,13 @@ def gathered(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, p
 
 
 def gathered_shares(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, areas_mm2: np.ndarray,
-                    profile: Profile, seed: int = 1,
-                    field: NearField | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    profile: Profile, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """(3,) `front` and (3,) `back`: the area means over R_tot of the energy-limited gather's light
     in front of and behind its receivers under even light (module docstring), from up to `POINTS`
-    vertices drawn at random; `field` as `gathered` takes it."""
+    vertices drawn at random."""
     n = len(positions_mm)
     points = np.arange(n) if n <= POINTS else np.sort(np.random.default_rng(seed).choice(n, POINTS, replace=False))
-    total, behind = gathered(positions_mm, faces, normals, profile, points, field)
+    total, behind = gathered(positions_mm, faces, normals, profile, points)
     r_tot = profile_total(profile)
     limit = np.minimum(1.0, r_tot / np.maximum(total, 1e-300))
     a = np.asarray(areas_mm2, dtype=np.float64)[points]

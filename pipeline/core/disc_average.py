@@ -23,8 +23,6 @@ has a relative error ~(σ_tr a)⁴/200 + 3e-4: small wherever a source's light s
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -65,34 +63,50 @@ class DiscMean:
 
     Build with `DiscMean.build`; the compiled `scatter_kernels` read it for many pairs (which pairs
     take the table, the exact mean, a polar rule, the expansion or the point value:
-    tests/disc_reference.py's `disc_mean`, the same in numpy).
+    tests/disc_reference.py's `disc_mean`, the same in numpy). They fill it as they read it
+    (`scatter_kernels.table_cell`): a cell is the exact mean at its node, computed the first time
+    a pair reads it, so a gather pays for the cells its pairs read and no more: the escape gain's
+    gather over 1024 receivers of the 50k dragon reads 46 % of its table (2.0-2.2 CPU-s in full),
+    the pilot's reference on its 4k subsample 61 %.
 
     Attributes
     ----------
     params : Profile
     log_a0 : float
         ln of the smallest tabulated radius (mm).
-    rows : _Rows
-        The table as threads build it; `log_table` waits for them.
+    a : (A,) float64
+        The tabulated radii, exp(log_a0 + i·LOG_A_STEP), mm.
+    t : (T,) float64
+        The tabulated d/a, j·T_STEP.
+    table : (3, A, T) float64
+        ln ḡ per channel at (a[i], t[j]); NaN where no reader has needed it yet. Shared by every
+        build of the same profile and grid (`_log_table`): only the kernels write it, each cell
+        once with its own value.
     """
 
     params: Profile
     log_a0: float
-    rows: "_Rows"
+    a: np.ndarray
+    t: np.ndarray
+    table: np.ndarray
 
     @property
     def log_table(self) -> np.ndarray:
-        """(3, A, T) float64: ln ḡ per channel at ln a = log_a0 + i·LOG_A_STEP, d/a = j·T_STEP
-        (read-only), once the threads that build it are done."""
-        return self.rows.result()
+        """(3, A, T) float64: ln ḡ per channel at ln a = log_a0 + i·LOG_A_STEP, d/a = j·T_STEP,
+        every cell filled (read-only view), for readers of the whole table."""
+        from sssbake.pipeline.core.scatter_kernels import disc_mean_rows  # it imports this module's constants
+
+        p = self.params
+        disc_mean_rows(self.a, self.t, p.weight, p.depth, p.sigma, *np.polynomial.legendre.leggauss(NODES),
+                       self.table, 0, len(self.a))
+        view = self.table.view()
+        view.flags.writeable = False
+        return view
 
     @staticmethod
     def build(params: Profile, radii_mm: np.ndarray) -> "DiscMean":
-        """Tabulate for source radii in the range of `radii_mm` (any shape, mm; zeros ignored).
-
-        Returns at once: the rows are built on threads of their own while the caller goes on (the
-        escape gain's stage walks meanwhile: `bake.stages.escape_gain_stage`), and the first read
-        of `log_table` waits for them."""
+        """Tabulate for source radii in the range of `radii_mm` (any shape, mm; zeros ignored): the
+        grid, its cells left for the kernels to fill as they read them."""
         radii = np.asarray(radii_mm, dtype=np.float64)
         floor = SMALL_DISC * float(params.z_min.min())
         big = radii[radii >= floor]
@@ -101,47 +115,18 @@ class DiscMean:
         count_a = int(np.ceil((hi - lo) / LOG_A_STEP)) + 2
         count_t = int(round(TABLE_REACH / T_STEP)) + 1
         poles = (np.ascontiguousarray(v, dtype=np.float64).tobytes() for v in (params.weight, params.depth, params.sigma))
-        return DiscMean(params, lo, _log_table(*poles, params.weight.shape, lo, count_a, count_t))
-
-
-class _Rows:
-    """A table whose row blocks `parts` (futures) fill on threads: `result` waits for them (and
-    raises what one raised) and returns the table read-only, so that no caller can change another's."""
-
-    def __init__(self, table: np.ndarray, parts: list):
-        self.table, self.parts = table, parts
-
-    def result(self) -> np.ndarray:
-        for part in self.parts:
-            part.result()
-        self.table.flags.writeable = False
-        return self.table
+        a = np.exp(lo + LOG_A_STEP * np.arange(count_a))
+        t = T_STEP * np.arange(count_t)
+        return DiscMean(params, lo, a, t, _log_table(*poles, lo, count_a, count_t))
 
 
 @lru_cache(maxsize=8)
-def _log_table(weight: bytes, depth: bytes, sigma: bytes, shape: tuple, lo: float, count_a: int,
-               count_t: int) -> _Rows:
-    """`DiscMean.rows` for a profile's poles (as bytes of `shape`) on the grid from ln a = `lo`.
+def _log_table(weight: bytes, depth: bytes, sigma: bytes, lo: float, count_a: int, count_t: int) -> np.ndarray:
+    """`DiscMean.table` for a profile's poles (as bytes) on the grid from ln a = `lo`, unfilled (NaN).
 
-    Kept: one bake builds the same table for the same surface and profile several times (the
-    pilot's reference and prt's pilot item, the escape gain's gather), 1-2.7 s each at 4k-50k
-    vertices."""
-    weight, depth, sigma = (np.frombuffer(b, dtype=np.float64).reshape(shape) for b in (weight, depth, sigma))
-    a = np.exp(lo + LOG_A_STEP * np.arange(count_a))
-    t = T_STEP * np.arange(count_t)
-    # Compiled (tests/disc_reference.py's `disc_mean_exact` term by term): the numpy form took 4.6 CPU-s at the 50k dragon.
-    from sssbake.pipeline.core.scatter_kernels import disc_mean_rows  # it imports this module's constants
-
-    table = np.empty((3, count_a, count_t))
-    gauss = np.polynomial.legendre.leggauss(NODES)
-    threads = min(len(os.sched_getaffinity(0)), count_a)
-    bounds = np.linspace(0, count_a, threads + 1).astype(int)
-    # The rows release the GIL: the caller's Python runs on beside them without waiting for it.
-    pool = ThreadPoolExecutor(threads)
-    parts = [pool.submit(disc_mean_rows, a, t, weight, depth, sigma, *gauss, table, bounds[k], bounds[k + 1])
-             for k in range(threads)]
-    pool.shutdown(wait=False)  # its threads end with the rows
-    return _Rows(table, parts)
+    Kept: one bake reads the same table for the same surface and profile several times (the
+    pilot's reference and prt's pilot item), and each reader fills what the others left."""
+    return np.full((3, count_a, count_t), np.nan)
 
 
 def _polar_rule(rings: int, angles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

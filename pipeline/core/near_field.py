@@ -122,8 +122,9 @@ class NearField:
         x = self.positions
         size = 2.0 * float(np.sqrt(((x - x.mean(axis=0)) ** 2).sum(axis=1).max())) if len(x) else 0.0
         r_hi = max(min(size, RADIAL_DECAYS / max(float(p.sigma_tr.max()), 1e-300)), 4.0 * r_lo)
-        disc = (self.disc.log_a0, self.disc.log_table, *np.polynomial.legendre.leggauss(DISC_NODES), *_POLAR_RULE,
-                float(p.z_min.min()), float(p.sigma_tr.max()), radial_table(p.weight, p.depth, p.sigma, r_lo, r_hi))
+        disc = (self.disc.log_a0, self.disc.table, *np.polynomial.legendre.leggauss(DISC_NODES), *_POLAR_RULE,
+                float(p.z_min.min()), float(p.sigma_tr.max()), radial_table(p.weight, p.depth, p.sigma, r_lo, r_hi),
+                self.disc.a, self.disc.t)
         return field, p.weight, p.depth, p.sigma, disc, self.cumulative.kernel_args(NODES_BESIDE)
 
     def weights(self, o: np.ndarray, i: np.ndarray) -> np.ndarray:

@@ -24,8 +24,9 @@ departures below float32 rounding (tests compare against the numpy forms):
   and π (entries moved by ~1e-8 when the mesh was rotated).
 
 Arrays are passed as a few typed arguments (numba cannot take the dataclasses): a *profile*
-is its (P, 3) weight, depth and sigma; a *disc* is ``(log_a0, log_table, gauss_x, gauss_w,
-polar_rho, polar_cos, polar_weight, z_min, sigma_tr, radial)`` (`radial_table`); a *field* the
+is its (P, 3) weight, depth and sigma; a *disc* is ``(log_a0, table, gauss_x, gauss_w,
+polar_rho, polar_cos, polar_weight, z_min, sigma_tr, radial, a, t)`` (`radial_table`; the table
+filled as it is read, `table_cell`, on the grid of radii a and of d/a t); a *field* the
 arrays of `NearField` (`NearField.kernel_args` builds them all).
 """
 
@@ -198,26 +199,35 @@ def disc_mean_exact_one(d, a, h, weight, depth, sigma, gauss_x, gauss_w, out):
         out[c] *= (0.25 * math.pi) / (math.pi * math.pi * a * a)
 
 
+@_inline
+def table_cell(table, i, j, a, t, weight, depth, sigma, gauss_x, gauss_w, value):
+    """Makes sure cell (i, j) of the disc table (3, A, T) holds ln of the exact disc mean at radius
+    a[i] and d/a = t[j] (`disc_average.DiscMean`): computed on its first read; value (3,) is overwritten.
+
+    The table starts as NaN and every cell is a function of (i, j) alone, so each channel's value
+    is its own flag: a thread that sees NaN computes the cell (two threads at once write the same
+    bits), one that sees a number reads it, whatever the order of the threads' stores."""
+    if math.isnan(table[0, i, j]) or math.isnan(table[1, i, j]) or math.isnan(table[2, i, j]):
+        disc_mean_exact_one(a[i] * t[j], a[i], 0.0, weight, depth, sigma, gauss_x, gauss_w, value)
+        for c in range(3):
+            table[c, i, j] = math.log(max(value[c], 1e-300))
+
+
 @numba.njit(cache=True, nogil=True)
 def disc_mean_rows(a, t, weight, depth, sigma, gauss_x, gauss_w, out, i0, i1):
-    """Rows i0..i1-1 of ln of the exact disc mean on the grid a (A,) × d/a (T,) into out (3, A, T)
-    (`disc_average.DiscMean.build`: ~2 CPU-s at the 50k dragon's ~300 radii). Rows go to the
-    caller's threads, not numba's parallel backend: that takes a multiprocessing lock in a
-    fork-server child, which leaks a semaphore (and a warning on the batch's stderr) when the
-    batch kills the child."""
+    """Rows i0..i1-1 of the disc table (3, A, T) on the grid a (A,) × d/a (T,): every cell not
+    filled yet (`table_cell`), for readers of the whole table (`DiscMean.log_table`)."""
     value = np.empty(3)
     for i in range(i0, i1):
         for j in range(len(t)):
-            disc_mean_exact_one(a[i] * t[j], a[i], 0.0, weight, depth, sigma, gauss_x, gauss_w, value)
-            for c in range(3):
-                out[c, i, j] = math.log(max(value[c], 1e-300))
+            table_cell(out, i, j, a, t, weight, depth, sigma, gauss_x, gauss_w, value)
 
 
 @_inline
 def _disc(d, a, h, weight, depth, sigma, disc, out, scratch):
     """ḡ of a disc of radius a at distance d, the receiver h off its plane, into out (3,)
     (`disc_reference.disc_mean` in tests); scratch (3,) is overwritten."""
-    log_a0, table, gauss_x, gauss_w, polar_rho, polar_cos, polar_weight, z_min, sigma_tr, radial = disc
+    log_a0, table, gauss_x, gauss_w, polar_rho, polar_cos, polar_weight, z_min, sigma_tr, radial, a_grid, t_grid = disc
     h = min(h, d)
     t = d / max(a, 1e-300)
     u = (math.log(max(a, 1e-300)) - log_a0) / LOG_A_STEP
@@ -246,6 +256,9 @@ def _disc(d, a, h, weight, depth, sigma, disc, out, scratch):
         ti = min(max(t / T_STEP, 0.0), table.shape[2] - 1.000001)
         i, j = int(ui), int(ti)
         fu, ft = ui - i, ti - j
+        for di in range(2):
+            for dj in range(2):
+                table_cell(table, i + di, j + dj, a_grid, t_grid, weight, depth, sigma, gauss_x, gauss_w, out)
         for c in range(3):
             v = ((1 - fu) * ((1 - ft) * table[c, i, j] + ft * table[c, i, j + 1])
                  + fu * ((1 - ft) * table[c, i + 1, j] + ft * table[c, i + 1, j + 1]))

@@ -12,7 +12,8 @@ xatlas charting of every scattering mesh took 50 of the 288 stage seconds of the
 2. **A proxy's charts** (parts of at least `PROXY_MIN_FACES` triangles): the part is simplified to
    `PROXY_FACES` triangles (`simplify.simplify`, its vertices at their quadric-optimal points: kept
    at input vertices the proxy folded, p95 dihedral angle 169° on the hand, and xatlas cut it into
-   450 charts against 27), xatlas charts and packs the proxy, and the charts are carried back:
+   450 charts against 27) and rid of its slivers (`_clean_proxy`), xatlas charts and packs the
+   proxy, and the charts are carried back:
    every triangle of the part joins the chart of the proxy triangle nearest its centroid, and its
    corners take the UVs of their projections onto that proxy triangle (a vertex on a chart border
    gets one copy per chart, each the mean over its corners in that chart). The UVs of a chart stay
@@ -32,10 +33,10 @@ from dataclasses import replace
 import numpy as np
 from scipy.sparse import coo_matrix, diags
 from scipy.sparse.csgraph import connected_components
-from trimesh.triangles import points_to_barycentric
+from trimesh.triangles import angles, points_to_barycentric
 
 from sssbake.pipeline.mesh.atlas import BLOCK, Atlas, AtlasError, AtlasPart, compute_atlas
-from sssbake.pipeline.mesh.simplify import SimplifyError, simplify
+from sssbake.pipeline.mesh.simplify import Simplified, SimplifyError, simplify
 from sssbake.pipeline.mesh.surface_locate import locate_on_mesh
 from sssbake.pipeline.mesh.uv_check import check_uvs
 
@@ -48,6 +49,23 @@ PROXY_MIN_FACES = 12000
 #: Smoothing steps that unfold the carried-back UVs (`_unfold`; on the dragon 0 left 0.090 % of the
 #: texels doubly covered, 2 0.027 %, 5 0.010 %; benchmarks/README.md#atlas-reuse).
 UNFOLD_STEPS = 5
+#: Proxy edges shorter than this fraction of the proxy's median edge are collapsed (`_clean_proxy`).
+#: Simplifying a midpoint-subdivided mesh (the 800k dragon, 1.6M triangles, to 5000) leaves a
+#: quarter of its proxy's triangles with an edge under 0.05 of the median, most under 0.001
+#: (vertices the simplifier stacked where the subdivision made the quadrics flat); the
+#: unsubdivided 50k dragon's proxy has none under 0.05, 6 under 0.1, and is kept as it is
+#: (benchmarks/README.md#proxy-slivers).
+SLIVER_EDGE = 0.05
+#: Proxy triangles with an angle under this (degrees) left after that are dropped: caps whose
+#: third vertex lies on their longest edge (151 of the 800k dragon's proxy's 738 triangles with an
+#: angle under 1°), no area to carry.
+SLIVER_ANGLE = 1.0
+#: A proxy that lost more than this fraction of its triangles to `_clean_proxy` is simplified
+#: again with as many more asked for: the 800k dragon's 5000-triangle proxy kept 3748 and its
+#: charts overlapped on 0.15 % of their texels (over `uv_check.OVERLAP_TOLERANCE`), 0.068 % with
+#: 6670 asked (5388 kept); the 150k dragon's kept 4683 and passes, 0.029 %
+#: (benchmarks/README.md#proxy-slivers).
+SLIVER_LOSS = 0.1
 
 
 def layout_atlas(
@@ -110,13 +128,64 @@ def _proxy_atlas(geometry: list[tuple[np.ndarray, np.ndarray]], resolution: int,
                  proxy_min_faces: int) -> Atlas:
     """One xatlas atlas of the parts, those of `proxy_min_faces` triangles or more charted through a
     proxy of `proxy_faces` triangles and carried back (others charted as they are)."""
-    proxies = [simplify(p, f, target_count=proxy_faces, snap=False) if len(f) >= proxy_min_faces else None
-               for p, f in geometry]
-    charted = compute_atlas([(s.positions, s.faces) if s is not None else g for s, g in zip(proxies, geometry)],
-                            resolution, padding)
-    parts = tuple(part if s is None else carry_back(p, f, s.positions, s.faces, part)
+    proxies = [_proxy(p, f, proxy_faces) if len(f) >= proxy_min_faces else None for p, f in geometry]
+    charted = compute_atlas([s if s is not None else g for s, g in zip(proxies, geometry)], resolution, padding)
+    parts = tuple(part if s is None else carry_back(p, f, *s, part)
                   for part, s, (p, f) in zip(charted.parts, proxies, geometry))
     return replace(charted, parts=parts, source="proxy")
+
+
+def _proxy(positions: np.ndarray, faces: np.ndarray, proxy_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (k, 3), faces (p, 3)): a proxy of about `proxy_faces` triangles without slivers
+    (`_clean_proxy`; once more with more triangles asked where it lost over `SLIVER_LOSS`)."""
+    proxy = _clean_proxy(simplify(positions, faces, target_count=proxy_faces, snap=False))
+    if len(proxy[1]) < (1.0 - SLIVER_LOSS) * proxy_faces:
+        asked = round(proxy_faces * proxy_faces / max(len(proxy[1]), 1))
+        proxy = _clean_proxy(simplify(positions, faces, target_count=asked, snap=False))
+    return proxy
+
+
+def _clean_proxy(proxy: Simplified) -> tuple[np.ndarray, np.ndarray]:
+    """A proxy without slivers: the ends of every edge shorter than `SLIVER_EDGE` of the median
+    edge merged at their mean, then triangles left with two corners on one vertex or an angle
+    under `SLIVER_ANGLE` dropped.
+
+    A sliver has no barycentric frame of its own, so the full-mesh triangles nearest it land on
+    its UV centroid or far outside it, and xatlas cuts charts at it: on the 800k dragon the
+    carried-back charts overlapped on 0.56 % of their texels, 0.15 % with the slivers gone
+    (benchmarks/README.md#proxy-slivers). A proxy without slivers is returned as it is.
+
+    Parameters
+    ----------
+    proxy : Simplified
+        ``positions`` (k, 3) float64 and ``faces`` (p, 3) int64.
+
+    Returns
+    -------
+    positions : (k', 3) float64
+    faces : (p', 3) int64
+        Every vertex used by a face.
+    """
+    positions, faces = proxy.positions, proxy.faces
+    edges = np.unique(np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    length = np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1)
+    short = edges[length < SLIVER_EDGE * np.median(length)]
+    n = len(positions)
+    _, group = connected_components(coo_matrix((np.ones(len(short)), (short[:, 0], short[:, 1])), shape=(n, n)),
+                                    directed=False)
+    size = np.bincount(group)
+    merged = np.column_stack([np.bincount(group, weights=positions[:, d]) / size for d in range(3)])
+    faces = group[faces]
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corner_angle = angles(merged[faces])
+    faces = faces[np.nan_to_num(corner_angle, nan=0.0).min(axis=1) >= np.radians(SLIVER_ANGLE)]
+    if not len(faces):
+        raise SimplifyError("proxy: every triangle was a sliver")
+    used = np.unique(faces)
+    index = np.full(len(merged), -1, dtype=np.int64)
+    index[used] = np.arange(len(used))
+    return merged[used], index[faces]
 
 
 def carry_back(positions: np.ndarray, faces: np.ndarray, proxy_positions: np.ndarray, proxy_faces: np.ndarray,

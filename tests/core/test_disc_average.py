@@ -106,21 +106,41 @@ def test_expansion_matches_its_derivative_form():
     np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12 * expected.max())
 
 
-def test_the_table_built_on_threads_beside_the_caller_is_the_one_built_in_one_pass():
-    """`DiscMean.build` returns while threads fill its rows (`log_table` waits for them): the same
-    bits as every row in one compiled pass on this thread, read-only, and kept for the next build
-    of the same profile and grid."""
-    from sssbake.pipeline.core.disc_average import LOG_A_STEP, NODES, T_STEP, TABLE_REACH
-    from sssbake.pipeline.core.scatter_kernels import disc_mean_rows
+def test_the_table_filled_as_pairs_read_it_is_the_exact_mean_at_its_nodes():
+    """The kernels fill the table's cells as pairs read them (`scatter_kernels.table_cell`): the
+    cells a few pairs read and no others, each ln of the numpy exact mean at its node to rounding;
+    the pairs' values the same bits as from the table filled in full first (`log_table`, read-only);
+    the table shared with the next build of the same profile and grid, which sees those cells."""
+    from sssbake.pipeline.core import disc_average as D
+    from sssbake.pipeline.core.near_field import NearField
 
+    rng = np.random.default_rng(3)
     p = profile_for(preset("skin1"))
-    radii = np.array([0.05, 0.4, 1.3])
-    built = DiscMean.build(p, radii)
-    table = built.log_table
-    a = np.exp(built.log_a0 + LOG_A_STEP * np.arange(table.shape[1]))
-    t = T_STEP * np.arange(int(round(TABLE_REACH / T_STEP)) + 1)
-    one_pass = np.empty_like(table)
-    disc_mean_rows(a, t, p.weight, p.depth, p.sigma, *np.polynomial.legendre.leggauss(NODES), one_pass, 0, len(a))
-    assert table.shape[1] > 2 and np.array_equal(table, one_pass)
-    assert not table.flags.writeable
-    assert DiscMean.build(p, radii).log_table is table
+    # A bumpy 12 × 12 grid: pairs a few radii apart read the table.
+    u, v = np.meshgrid(np.arange(12.0), np.arange(12.0))
+    x = np.c_[u.ravel(), v.ravel(), 0.05 * rng.standard_normal(144)] * 0.7
+    quads = (np.arange(11)[:, None] * 12 + np.arange(11)[None, :]).ravel()
+    faces = np.r_[np.c_[quads, quads + 1, quads + 13], np.c_[quads, quads + 13, quads + 12]]
+    normals = np.tile([0.0, 0.0, 1.0], (144, 1))
+    D._log_table.cache_clear()
+    field = NearField.build(x, faces, normals, p)
+    table = field.disc.table
+    assert np.isnan(table).all()
+    o, i = rng.integers(0, 144, 300), rng.integers(0, 144, 300)
+    lazy = field.weights(o, i)
+    filled = ~np.isnan(table)
+    assert filled.any() and not filled.all() and (filled == filled[:1]).all()  # whole cells, all three channels
+    ii, jj = np.nonzero(filled[0])
+    a, t = field.disc.a[ii], field.disc.t[jj]
+    np.testing.assert_allclose(table[:, ii, jj].T, np.log(disc_mean_exact(a * t, a, p)), rtol=1e-12, atol=1e-12)
+
+    again = NearField.build(x, faces, normals, p)
+    assert again.disc.table is table  # shared: one bake's readers fill one table
+    full = again.disc.log_table
+    assert not full.flags.writeable and not np.isnan(full).any()
+    assert np.array_equal(full[:, ii, jj], table[:, ii, jj])
+    D._log_table.cache_clear()
+    prefilled = NearField.build(x, faces, normals, p)
+    prefilled.disc.log_table
+    assert prefilled.disc.table is not table and np.array_equal(prefilled.disc.table, full)
+    assert np.array_equal(prefilled.weights(o, i), lazy)

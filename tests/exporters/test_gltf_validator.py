@@ -72,6 +72,23 @@ def test_env_var_names_the_node_modules_folder(tmp_path, monkeypatch):
     assert find_validator() == tmp_path / "node_modules"
 
 
+def test_npm_is_asked_only_when_no_local_folder_holds_it(tmp_path, monkeypatch):
+    asked = []
+    monkeypatch.setattr(gltf_validator, "_npm_root_global", lambda: asked.append(1) or tmp_path / "global")
+    local = tmp_path / "node_modules"
+    (local / "gltf-validator").mkdir(parents=True)
+    (local / "gltf-validator" / "package.json").write_text("{}")
+    monkeypatch.setenv(gltf_validator.ENV_VAR, str(local))
+    assert find_validator() == local and asked == []
+    # none of the local folders holds it: not $SSSBAKE_GLTF_VALIDATOR's, the package's, the working folder's
+    (tmp_path / "global" / "gltf-validator").mkdir(parents=True)
+    (tmp_path / "global" / "gltf-validator" / "package.json").write_text("{}")
+    monkeypatch.setenv(gltf_validator.ENV_VAR, str(tmp_path / "elsewhere"))
+    monkeypatch.setattr(gltf_validator, "__file__", str(tmp_path / "pkg" / "exporters" / "gltf_validator.py"))
+    monkeypatch.chdir(tmp_path / "global")
+    assert find_validator() == tmp_path / "global" and asked == [1]
+
+
 def test_missing_node_says_how_to_install(monkeypatch):
     monkeypatch.setattr(gltf_validator.shutil, "which", lambda name: None)
     with pytest.raises(ValidatorUnavailable, match="npm install gltf-validator"):
