@@ -57,7 +57,7 @@ def bake(name: str, mesh: Path, mm: float, material: str, out: Path) -> Path | N
     if glb.is_file():
         return glb
     t = time.perf_counter()
-    run = subprocess.run(["sssbake", "bake", str(mesh), "-o", str(folder), "--material", material, "--scale-mm",
+    run = subprocess.run([sys.executable, "-m", "sssbake.pipeline.cli", "bake", str(mesh), "-o", str(folder), "--material", material, "--scale-mm",
                           str(mm), "--techniques", ",".join(TECHNIQUES), "--jobs", "1", "-q"],
                          capture_output=True, text=True)
     if run.returncode or not glb.is_file():

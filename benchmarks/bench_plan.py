@@ -19,9 +19,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from sssbake.exporters.inspect_gltf import inspect_glb
 from sssbake.pipeline.bake.batch import run_batch
 from sssbake.pipeline.config import load_config
-from sssbake.pipeline.techniques.registry import technique as registered
+from sssbake.pipeline.techniques.footprint import footprint
 
 HERE = Path(__file__).resolve().parent
 
@@ -53,6 +54,7 @@ def main() -> None:
             print(f"{name:<28} failed: {record['error']}")
             continue
         report = json.loads(Path(next(p for p in record["outputs"] if p.endswith(".report.json"))).read_text())
+        used = footprint(inspect_glb(next(p for p in record["outputs"] if p.endswith(".glb"))))["techniques"]
         check = report.get("check", {})
         kept = check.get("figures", {})
         for e in report["plan"] or [{"mesh": "-", "material": "-", "techniques": []}]:
@@ -61,8 +63,7 @@ def main() -> None:
             short = (lambda i: pilot["candidates"][i]["label"].split(" (")[0]) if pilot else None
             picks = technique or "none" if pilot is None else f"{short(pilot['chosen'])} -> {short(pilot['pick'])}"
             figures = kept.get(technique, {}) if technique else {}
-            blocks = list(report.get(technique, {}).values()) if technique else []
-            per_vertex = registered(technique).bytes_per_vertex(blocks[0]) if blocks else 0.0
+            per_vertex = used.get(technique, {}).get("total", 0.0)
             rmse = figures.get("rmse_image")
             verdict = ("unchecked" if "skipped" in figures else "-") if rmse is None else (
                 "within" if rmse <= args.budget else "over")

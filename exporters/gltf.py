@@ -704,6 +704,16 @@ _TABLE_COMPONENTS = {np.dtype(np.uint8): UNSIGNED_BYTE, np.dtype(np.int8): BYTE,
                      np.dtype(np.uint16): UNSIGNED_SHORT, np.dtype(np.int16): SHORT}
 
 
+def table_dtype(dtype: np.dtype) -> np.dtype:
+    """The dtype a table of `dtype` is stored at in a .glb (`_table`): floats as float32, (u)int8
+    and (u)int16 as they are, other integers as uint32; what the table costs a runtime, whatever
+    the container (USD keeps integers as int[])."""
+    dtype = np.dtype(dtype)
+    if dtype.kind == "f":
+        return np.dtype(np.float32)
+    return dtype if dtype in _TABLE_COMPONENTS else np.dtype(np.uint32)
+
+
 def _table(array: np.ndarray, packer: _Packer, where: str, name: str) -> dict:
     """Write a table as accessor `name` (float -> FLOAT, (u)int8/(u)int16 as they are, other
     non-negative integers -> UNSIGNED_INT) and return its table reference.

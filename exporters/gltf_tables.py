@@ -25,7 +25,7 @@ from sssbake.exporters.gltf import (
     element_array,
     table_crc32,
 )
-from sssbake.pipeline.core.errors import StaleDataError
+from sssbake.pipeline.core.errors import AssetError, StaleDataError
 from sssbake.pipeline.mesh.baked import SCHEMA_VERSION
 from sssbake.pipeline.mesh.confine import Confinement
 from sssbake.pipeline.mesh.load_gltf import GltfObject, load_buffers, read_gltf_file
@@ -230,7 +230,9 @@ def load_sssbake_gltf(path: str | os.PathLike, required: bool = False) -> Sssbak
     StaleDataError
         The file holds schema 1.x data (``extras.sssbake``), data of another major schema version,
         ``_`` vertex attributes with the extension gone (a tool dropped it), or (`required`) no
-        sssbake data at all.
+        sssbake data at all from a tool known to strip it (gltfpack, Blender, ...).
+    AssetError
+        (`required`) No sssbake data, and no tool known to strip it wrote the file: a plain glTF.
     """
     path = os.fspath(path)
     file = read_gltf_file(path)
@@ -246,6 +248,9 @@ def load_sssbake_gltf(path: str | os.PathLike, required: bool = False) -> Sssbak
                          for name in (prim.attributes or {}) if name.startswith("_")})
         if any(name.startswith(("_SSS_", "_THICKNESS")) for name in custom):
             raise data.stale(f"sssbake vertex attributes {custom} without the root's {EXTENSION} object")
+        if required and likely_tool(gltf)[1] == _OTHER_FIX:  # no tool known to strip it wrote this file
+            raise AssetError(path, f"no {EXTENSION} data: not a file sssbake baked (bake the asset with sssbake), "
+                                   "or one a tool stripped it from")
         if required:
             raise data.stale(f"no {EXTENSION} data (sssbake writes it into every file it bakes)")
         return data

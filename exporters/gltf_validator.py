@@ -1,9 +1,11 @@
 """The Khronos glTF-Validator (npm package ``gltf-validator``), run through node in a subprocess.
 
 The package is looked for in, in order: the folder named by ``SSSBAKE_GLTF_VALIDATOR`` (a
-``node_modules`` folder), the repository's and the working directory's ``node_modules``, and
-``npm root -g``. Install it with ``npm install gltf-validator`` (the repository's
-``package.json`` pins it; ``npm ci`` there installs the pinned version).
+``node_modules`` folder), the checkout's and the working directory's ``node_modules``, the per-user
+folder ``$XDG_DATA_HOME/sssbake/node_modules`` (`USER_FOLDER` under ``~/.local/share`` when
+``XDG_DATA_HOME`` is unset), and ``npm root -g``. ``sssbake doctor --install-validator`` installs
+`VALIDATOR_VERSION` into the per-user folder, where an installed wheel finds it; in a checkout,
+``npm ci`` installs the version ``package-lock.json`` pins, the same one.
 """
 
 from __future__ import annotations
@@ -22,11 +24,15 @@ from pathlib import Path
 from sssbake.pipeline.core.errors import AssetError, SssbakeError
 
 ENV_VAR = "SSSBAKE_GLTF_VALIDATOR"
+#: The per-user ``node_modules`` folder, under ``$XDG_DATA_HOME`` (default ``~/.local/share``): where
+#: ``sssbake doctor --install-validator`` installs the validator (`user_folder`).
+USER_FOLDER = Path("sssbake", "node_modules")
+#: The gltf-validator that ``sssbake doctor --install-validator`` installs: package-lock.json's pin
+#: (tests/exporters/test_gltf_validator.py holds them equal).
+VALIDATOR_VERSION = "2.0.0-dev.3.10"
 _SCRIPT = Path(__file__).with_name("gltf_validate.mjs")
 SEVERITIES = ("Error", "Warning", "Information", "Hint")
 _ERROR_LINE = re.compile(r"[A-Za-z]*Error\b")  # "RangeError: Maximum call stack size exceeded"
-_INSTALL = "install it with `npm install gltf-validator` in the repository (or set " + ENV_VAR + \
-    " to a node_modules folder that holds it)"
 
 
 #: Deepest node hierarchy handed to the validator. It recurses once per level: it runs out of node's
@@ -191,18 +197,43 @@ def find_validator() -> Path:
         if (folder / "gltf-validator" / "package.json").is_file():
             return folder
         looked.append(str(folder))
-    raise ValidatorUnavailable(f"the npm package gltf-validator was not found (looked in {', '.join(looked)}); {_INSTALL}")
+    raise ValidatorUnavailable(f"the npm package gltf-validator was not found (looked in {', '.join(looked)}); "
+                               f"{_install_hint()}")
+
+
+def validator_available() -> bool:
+    """Whether a validation would start here: node and the gltf-validator package both found."""
+    try:
+        find_validator()
+        _node()
+    except ValidatorUnavailable:
+        return False
+    return True
+
+
+def user_folder() -> Path:
+    """The per-user ``node_modules`` folder: `USER_FOLDER` under ``$XDG_DATA_HOME``, or under
+    ``~/.local/share`` where that is unset or relative (the XDG spec ignores a relative one)."""
+    base = os.environ.get("XDG_DATA_HOME", "")
+    return (Path(base) if os.path.isabs(base) else Path.home() / ".local" / "share") / USER_FOLDER
+
+
+def _install_hint() -> str:
+    return (f"run `sssbake doctor --install-validator` (npm installs gltf-validator@{VALIDATOR_VERSION} in "
+            f"{user_folder()}), or set {ENV_VAR} to a node_modules folder that holds it")
 
 
 def _validator_folders() -> Iterator[Path]:
-    """Where the validator may be, in order: ``$SSSBAKE_GLTF_VALIDATOR``, the repository's and the
-    working folder's ``node_modules``, npm's global root. The last is asked only when the others
-    fail: ``npm root -g`` is a node process, ~0.15 s of every bake that a local install spares."""
+    """Where the validator may be, in order: ``$SSSBAKE_GLTF_VALIDATOR``, the checkout's and the
+    working folder's ``node_modules``, the per-user folder, npm's global root. The last is asked
+    only when the others fail: ``npm root -g`` is a node process, ~0.15 s of every bake that a local
+    install spares."""
     env = os.environ.get(ENV_VAR)
     if env:
         yield Path(env)
     yield Path(__file__).resolve().parents[1] / "node_modules"
     yield Path.cwd() / "node_modules"
+    yield user_folder()
     global_root = _npm_root_global()
     if global_root:
         yield global_root
@@ -211,7 +242,8 @@ def _validator_folders() -> Iterator[Path]:
 def _node() -> str:
     node = shutil.which("node")
     if node is None:
-        raise ValidatorUnavailable(f"node (Node.js) is not installed: install Node.js and npm, then {_INSTALL}")
+        raise ValidatorUnavailable("node (Node.js) is not installed: install Node.js and npm (Debian: apt-get install "
+                                   f"nodejs npm), then {_install_hint()}")
     return node
 
 

@@ -15,8 +15,14 @@ from sssbake.pipeline.core.errors import AssetError
 from sssbake.pipeline.mesh.load_gltf import GltfObject
 
 
-def inspect_glb(path: str | os.PathLike) -> dict:
+def inspect_glb(path: str | os.PathLike, required: bool = False) -> dict:
     """Summarise the sssbake content of a .glb file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    required : bool
+        Refuse a file without sssbake data, as verify and the readers do (`load_sssbake_gltf`).
 
     Returns
     -------
@@ -32,7 +38,8 @@ def inspect_glb(path: str | os.PathLike) -> dict:
         {``_NAME``: {``accessor``, ``count``, ``type``, ``componentType`` (name), ``normalized``,
         ``bytes``, ``bytesPerVertex``}} and ``bytesPerVertex`` (all ``_`` attributes);
         ``materials``: per material with a ``SSSBAKE_subsurface`` object its ``index``, ``name``,
-        ``extensions`` (names), ``sssbake`` and ``techniques`` (as a mesh's: the screen tables);
+        ``extensions`` (names), ``thicknessTexture`` (the fallback's ``KHR_materials_volume``
+        has one), ``sssbake`` and ``techniques`` (as a mesh's: the screen tables);
         ``bytesPerVertex``: {``_NAME``: bytes / vertices of the primitives carrying it,
         ``total``: all ``_`` attribute bytes / all vertices}.
 
@@ -43,13 +50,13 @@ def inspect_glb(path: str | os.PathLike) -> dict:
     Raises
     ------
     AssetError
-        The file is not glTF sssbake reads (`gltf_tables.load_sssbake_gltf`), or an accessor it
-        summarises is malformed.
+        The file is not glTF sssbake reads (`gltf_tables.load_sssbake_gltf`), holds no sssbake
+        data (`required`), or an accessor it summarises is malformed.
     StaleDataError
         Schema 1.x data, or a table or ``_`` attribute that no longer matches its reference.
     """
     path = Path(path)
-    data = load_sssbake_gltf(path)
+    data = load_sssbake_gltf(path, required)
     gltf = data.gltf
 
     meshes = []
@@ -90,7 +97,9 @@ def inspect_glb(path: str | os.PathLike) -> dict:
     for i, m in enumerate(gltf.materials):
         sssbake = data.extension(m) if data.root is not None else None
         if sssbake is not None:
+            volume = (m.extensions or {}).get("KHR_materials_volume")
             materials.append({"index": i, "name": m.name, "extensions": sorted(m.extensions or {}),
+                              "thicknessTexture": isinstance(volume, dict) and "thicknessTexture" in volume,
                               "sssbake": sssbake, "techniques": _techniques(data, sssbake, f"materials[{i}]")})
     per_vertex = {name: attr_bytes[name] / attr_vertices[name] for name in attr_bytes if attr_vertices[name]}
     per_vertex["total"] = sum(attr_bytes.values()) / total_vertices if total_vertices else 0.0

@@ -11,13 +11,22 @@ from pathlib import Path
 import numpy as np
 from pxr import Usd, UsdGeom, UsdShade
 
+from sssbake.exporters.gltf import table_dtype
 from sssbake.exporters.usd import SSS, check_schema, technique_tables
+from sssbake.pipeline.core.errors import AssetError
 
 _PRIMVAR_PREFIX = "primvars:" + SSS
 
 
-def inspect_usdc(path: str | os.PathLike) -> dict:
+def inspect_usdc(path: str | os.PathLike, required: bool = False) -> dict:
     """Summarise the sssbake content of a .usd/.usda/.usdc file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    required : bool
+        Refuse a stage whose default prim has no ``sss:schemaVersion`` (never baked by sssbake,
+        or its ``sss:`` data dropped by another tool).
 
     Returns
     -------
@@ -28,8 +37,9 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
         ``meshes``: per Mesh prim ``path``, ``vertices`` (points), ``faces``, ``scaleMm``,
         ``material`` (bound material path or None), ``extras`` (its ``sss:extras`` JSON, parsed,
         or None), ``techniques`` {technique (``prt``, ``kernels``, ...): {``bytes`` (all its
-        tables), ``tables`` {key: {``attribute``, ``type``, ``shape``, ``count`` (array
-        elements), ``bytes`` (as stored)}}}}, ``primvars`` {``primvars:sss:<key>``:
+        tables), ``tables`` {key: {``attribute``, ``type``, ``dtype`` (as a .glb stores the
+        baked table: `gltf.table_dtype`), ``shape``, ``count`` (array elements), ``bytes`` (count ×
+        that dtype's size)}}}}, ``primvars`` {``primvars:sss:<key>``:
         {``type``, ``interpolation``, ``elementSize``, ``count`` (array elements), ``bytes``
         (count × value bytes, as loaded), ``bytesPerVertex``, ``unit``, ``description``,
         ``encoding`` (glTF's), ``components`` (values per vertex), ``packedBits`` (bits per
@@ -47,6 +57,8 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
         The file cannot be opened as a USD stage.
     StaleDataError
         Written by another major schema, or a table no longer matches its reference.
+    AssetError
+        (`required`) No sssbake schema version.
     """
     path = Path(path)
     stage = Usd.Stage.Open(str(path))
@@ -54,6 +66,10 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
     time = Usd.TimeCode.EarliestTime()
     default = stage.GetDefaultPrim()
     root = default if default else stage.GetPseudoRoot()
+    version = root.GetAttribute(SSS + "schemaVersion").Get() if default else None
+    if required and version is None:
+        raise AssetError(path, f"no {SSS}schemaVersion on its default prim: not a file sssbake baked (bake the "
+                               f"asset with sssbake), or one a tool dropped its {SSS} data from")
 
     meshes = []
     attr_bytes: dict[str, int] = {}
@@ -127,7 +143,7 @@ def inspect_usdc(path: str | os.PathLike) -> dict:
         "defaultPrim": str(default.GetPath()) if default else None,
         "upAxis": UsdGeom.GetStageUpAxis(stage),
         "metersPerUnit": UsdGeom.GetStageMetersPerUnit(stage),
-        "schemaVersion": root.GetAttribute(SSS + "schemaVersion").Get() if default else None,
+        "schemaVersion": version,
         "extras": json.loads(extras) if extras else None,
         "meshes": meshes,
         "materials": materials,
@@ -148,8 +164,12 @@ def _techniques(prim: Usd.Prim, extras: dict | None) -> dict:
             if isinstance(ref, dict) and "attribute" in ref:
                 attribute = prim.GetAttribute(ref["attribute"])
                 array = np.asarray(attribute.Get())
+                # USD holds integer tables as int[] (compressed on disk); the dtype a .glb stores the
+                # baked table at is what it costs a runtime, so both files give one figure
+                dtype = table_dtype(str(attribute.GetCustomData().get("dtype", array.dtype.name)))
                 tables[key] = {"attribute": ref["attribute"], "type": str(attribute.GetTypeName()),
-                               "shape": ref.get("shape"), "count": int(array.size), "bytes": int(array.nbytes)}
+                               "dtype": dtype.name, "shape": ref.get("shape"), "count": int(array.size),
+                               "bytes": int(array.size) * dtype.itemsize}
         if tables:
             out[name] = {"bytes": sum(t["bytes"] for t in tables.values()), "tables": tables}
     return out

@@ -88,6 +88,11 @@ def _bake(args) -> int:
         f"summary in {_one_line(str(out / 'batch.json'))}",
         file=sys.stderr if args.quiet else sys.stdout,
     )
+    unvalidated = [r for r in summary["assets"] if r.get("validation_skipped")]
+    if unvalidated:  # one line for the batch: the reason (and its fix) is the same for every asset
+        print(_one_line(f"warning: glTF validation skipped for {len(unvalidated)} of {len(summary['assets'])} "
+                        f"asset(s), first {unvalidated[0]['asset']}: {unvalidated[0]['validation_skipped']}"),
+              file=sys.stderr)
     worse = lambert_line(summary["worse_than_lambert"], "on the pilot's subsample")
     if worse:
         print(_one_line(worse), file=sys.stderr if args.quiet else sys.stdout)
@@ -152,34 +157,56 @@ def _vector(text: str, flag: str) -> tuple[float, float, float]:
 
 
 def _verify(args) -> int:
-    import numpy as np
-
-    from sssbake.pipeline.verify.verify import DEFAULT_LIGHT, verify_file
+    from sssbake.pipeline.verify.verify import DEFAULT_LIGHT, held_techniques, verify_file
 
     if Path(args.file).suffix.lower() != ".glb":
         print(f"error: {args.file}: verify reads the .glb files sssbake bake writes", file=sys.stderr)
         return 2
-    try:
-        light = DEFAULT_LIGHT if args.light_dir is None else _vector(args.light_dir, "--light-dir")
-        position = None if args.light_pos is None else _vector(args.light_pos, "--light-pos")
-        if args.reference == "volpath":
-            from sssbake.pipeline.verify.volpath import VOLPATH_SIZE, verify_volpath
+    if args.reference == "volpath":  # Mitsuba's absence, with how to install it, before anything is read
+        from sssbake.pipeline.verify.volpath import load_mitsuba
 
-            if position is not None:
-                raise VerifyError("--reference volpath lights the truth with a lobe around --light-dir, not a point "
-                                  "light")
-            result = verify_volpath(args.file, args.technique, light, args.size or VOLPATH_SIZE, args.spp, args.out,
-                                    args.cache_dir, args.lpv_steps)
-        else:
-            result = verify_file(args.file, args.technique, light, args.size or 512, args.out, args.frames, position,
-                                 args.reference, args.lpv_steps, args.stock_viewer)
-    except AssetError as e:  # already "<path>: <problem>"
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    except (OSError, ValueError) as e:  # the file's readers and verify raise ValueErrors, most without its path
-        message = (str(e).splitlines()[0] if str(e) else type(e).__name__).removeprefix(f"{args.file}: ")
-        print(f"error: {_one_line(f'{args.file}: {message}')}", file=sys.stderr)
-        return 1
+        load_mitsuba()
+    failed, references = False, {}  # the dipole references, shared by the file's techniques
+    try:
+        techniques = [args.technique] if args.technique else held_techniques(args.file)
+    except (OSError, ValueError, AssetError) as e:
+        techniques, failed = [], _verify_error(args.file, e)
+    for technique in techniques:
+        try:
+            light = DEFAULT_LIGHT if args.light_dir is None else _vector(args.light_dir, "--light-dir")
+            position = None if args.light_pos is None else _vector(args.light_pos, "--light-pos")
+            if args.reference == "volpath":
+                from sssbake.pipeline.verify.volpath import VOLPATH_SIZE, verify_volpath
+
+                if position is not None:
+                    raise VerifyError("--reference volpath lights the truth with a lobe around --light-dir, not a "
+                                      "point light")
+                result = verify_volpath(args.file, technique, light, args.size or VOLPATH_SIZE, args.spp, args.out,
+                                        args.cache_dir, args.lpv_steps)
+            else:
+                result = verify_file(args.file, technique, light, args.size or 512, args.out, args.frames, position,
+                                     args.reference, args.lpv_steps, args.stock_viewer, references=references)
+        except (OSError, ValueError, AssetError) as e:  # the readers' and verify's, most naming the file
+            failed = _verify_error(args.file, e)
+            continue
+        _verify_lines(args, result)
+    return 1 if failed else 0
+
+
+def _verify_error(file: str, e: Exception) -> bool:
+    """Print `e` as one line naming `file` once (the readers and verify name it in most messages, as
+    they were given it or as a `Path` wrote it); True."""
+    message = str(e).splitlines()[0] if str(e) else type(e).__name__
+    named = file in message or str(Path(file)) in message
+    print(f"error: {_one_line(message if named else f'{file}: {message}')}", file=sys.stderr)
+    return True
+
+
+def _verify_lines(args, result: dict) -> None:
+    """One technique's `verify_file` (or `verify_volpath`) result: one JSON object a line with
+    ``--json``, else lines of text."""
+    import numpy as np
+
     if args.json:
         print(json.dumps(result))
     elif args.reference == "volpath":
@@ -206,7 +233,6 @@ def _verify(args) -> int:
             print(f"stock viewer (pyrender, unscaled): RMSE object fallback {result['rmse_object_stock']:.4g} "
                   f"(best-fit scale to the reference {np.round(result['stock_scale'], 3).tolist()}), {variant}; "
                   f"{result['stock_seconds']:.2f} s; images in {result['pngs']['stock']}")
-    return 0
 
 
 def _volpath_line(file: str, r: dict) -> str:
@@ -237,7 +263,7 @@ def _volpath_line(file: str, r: dict) -> str:
 
 def _tradeoff(args) -> int:
     from sssbake.pipeline.core.materials import material_from_spec
-    from sssbake.pipeline.mesh.scale import SCALE_MM
+    from sssbake.pipeline.core.ranges import SCALE_MM
     from sssbake.pipeline.techniques import registry
 
     path = Path(args.input)
@@ -272,24 +298,32 @@ def _inspect(args) -> int:
     path = Path(args.file)
     suffix = path.suffix.lower()
     try:
+        # required: a file without sssbake data is refused as verify and the readers refuse it
         if suffix in (".glb", ".gltf"):
             from sssbake.exporters.inspect_gltf import inspect_glb
 
-            info = inspect_glb(path)
+            info = inspect_glb(path, required=True)
         elif suffix in (".usdc", ".usda", ".usd"):
             from sssbake.exporters.inspect_usd import inspect_usdc
 
-            info = inspect_usdc(path)
+            info = inspect_usdc(path, required=True)
         else:
             print(f"error: {path}: inspect reads .glb/.gltf/.usd/.usda/.usdc files", file=sys.stderr)
             return 2
     except AssetError as e:  # already "<path>: <problem>"
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {_one_line(str(e))}", file=sys.stderr)
         return 1
     except Exception as e:  # any unreadable file is one line, not a traceback
         print(f"error: {path}: cannot inspect: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
         return 1
-    print(json.dumps(info, indent=1, default=str))
+    from sssbake.exporters.inspect_summary import summary_lines
+    from sssbake.pipeline.techniques.footprint import footprint
+
+    used = footprint(info)
+    if args.json:
+        print(json.dumps({**info, "footprint": used}, indent=1, default=str))
+    else:
+        print("\n".join(_one_line(line) for line in summary_lines(info, used)))
     return 0
 
 
@@ -313,6 +347,19 @@ def _view(args) -> int:
     finally:
         server.close()
     return 0
+
+
+def _doctor(args) -> int:
+    from sssbake.pipeline.doctor import install_validator, run_checks
+
+    if args.install_validator:
+        print(install_validator(), flush=True)  # then the checks, the validator's among them, as after any run
+    checks = run_checks()
+    for check in checks:
+        print(_one_line(check.line()))
+    missing = [c.part for c in checks if c.required and not c.ok]
+    print(f"{len(missing)} required part(s) missing: {', '.join(missing)}" if missing else "all required parts are ok")
+    return 1 if missing else 0
 
 
 def _port(text: str) -> int:
@@ -348,14 +395,33 @@ def _whole_number_at_least_1(text: str) -> int:
     return value
 
 
-def build_parser() -> argparse.ArgumentParser:
+#: The commands, each with its help (`build_parser`).
+COMMANDS = {
+    "bake": "bake assets (files or folders, walked recursively) into glTF + USD",
+    "inspect": "show the sssbake data a .glb or .usdc holds, with bytes per vertex",
+    "verify": "render an export with the shipped GLSL and the offline reference; image RMSE",
+    "tradeoff": "sweep a technique's knobs: image RMSE vs bytes per vertex and seconds",
+    "plan": "which technique each object and material needs, with reasons (bakes nothing)",
+    "view": "show a baked .glb in the browser with the three.js runtime (127.0.0.1 only)",
+    "doctor": "check the run-time parts outside Python (Node.js, the glTF validator, three.js, EGL, Chromium, "
+              "Mitsuba): ok or missing, with the fix",
+    "presets": "list the measured material presets (Jensen et al. 2001)",
+}
+
+
+def build_parser(arguments: bool = True) -> argparse.ArgumentParser:
+    """The command line's parser; `arguments` False: the commands alone, each with its help but none of
+    its arguments, which is all ``sssbake --help`` shows: their defaults and choices import every
+    technique (`pipeline.options`), and it then imports none."""
+    parser = argparse.ArgumentParser(prog="sssbake", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    commands = {name: sub.add_parser(name, help=text) for name, text in COMMANDS.items()}
+    if not arguments:
+        return parser
     from sssbake.pipeline.options import BAKE_DEFAULTS
     from sssbake.pipeline.techniques import registry
 
-    parser = argparse.ArgumentParser(prog="sssbake", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    b = sub.add_parser("bake", help="bake assets (files or folders, walked recursively) into glTF + USD")
+    b = commands["bake"]
     b.add_argument("paths", nargs="+", help="asset files or folders")
     b.add_argument("-o", "--out", required=True, help="output folder (mirrors the input tree)")
     b.add_argument("--material", help=f"preset name or 'opaque' for unmatched materials (default {BAKE_DEFAULTS.material})")
@@ -392,13 +458,16 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("-q", "--quiet", action="store_true", help="no progress bar, only errors")
     b.set_defaults(func=_bake, flags=_flags(b))
 
-    i = sub.add_parser("inspect", help="show the sssbake data a .glb or .usdc holds, with bytes per vertex")
+    i = commands["inspect"]
     i.add_argument("file")
+    i.add_argument("--json", action="store_true", help="print the whole summary as JSON, with the bytes per vertex "
+                                                       "of each technique and mesh (footprint)")
     i.set_defaults(func=_inspect)
 
-    v = sub.add_parser("verify", help="render an export with the shipped GLSL and the offline reference; image RMSE")
+    v = commands["verify"]
     v.add_argument("file", help="a .glb written by sssbake bake")
-    v.add_argument("--technique", default="prt", choices=registry.NAMES)
+    v.add_argument("--technique", choices=registry.NAMES,
+                   help="the technique to verify (default: each one the file holds, in turn)")
     v.add_argument("--lpv-steps", type=int, default=16, help="lpv: propagation steps per frame (default 16)")
     v.add_argument("--light-dir", help="x,y,z world direction towards a directional light (default 0.4,0.8,0.45)")
     v.add_argument("--light-pos", help="x,y,z world position of a point light instead (unit irradiance at the "
@@ -421,22 +490,22 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=_verify)
 
-    t = sub.add_parser("tradeoff", help="sweep a technique's knobs: image RMSE vs bytes per vertex and seconds")
+    t = commands["tradeoff"]
     t.add_argument("input", help="a mesh file (the largest mesh is used)")
     t.add_argument("--technique", default="prt", choices=registry.NAMES)
     t.add_argument("--material", default=BAKE_DEFAULTS.material, help="preset name (default marble)")
     t.add_argument("--scale-mm", type=float,
                    help=f"millimetres per file unit (required for OBJ/PLY/STL{_within('scale_mm')})")
     _profile_argument(t, BAKE_DEFAULTS.profile)
-    for technique in registry.TECHNIQUES:
-        technique.add_tradeoff_arguments(t)
+    for entry in registry.ENTRIES:
+        entry.add_tradeoff_arguments(t)
     t.add_argument("--lights", type=int, default=3, help="random test lights; the worst RMSE counts (default 3)")
     t.add_argument("--size", type=int, default=256, help="image size (default 256)")
     t.add_argument("--out", help="folder for the JSON, CSV and plot (default: next to the input)")
     t.add_argument("--json", action="store_true", help="print one JSON object")
     t.set_defaults(func=_tradeoff)
 
-    pl = sub.add_parser("plan", help="which technique each object and material needs, with reasons (bakes nothing)")
+    pl = commands["plan"]
     pl.add_argument("paths", nargs="+", help="files or folders, as for bake")
     pl.add_argument("--config", help="TOML batch config (defaults, per-file rules, material rules)")
     pl.add_argument("--material", help="preset name or 'opaque' for unmatched materials")
@@ -449,13 +518,19 @@ def build_parser() -> argparse.ArgumentParser:
     _allow_root_argument(pl)
     pl.set_defaults(func=_plan)
 
-    w = sub.add_parser("view", help="show a baked .glb in the browser with the three.js runtime (127.0.0.1 only)")
+    w = commands["view"]
     w.add_argument("file", help="a .glb written by sssbake bake")
     w.add_argument("--port", type=_port, default=0, help="loopback port (default 0: a free one)")
     w.add_argument("--no-open", action="store_true", help="print the URL, do not open a browser")
     w.set_defaults(func=_view)
 
-    p = sub.add_parser("presets", help="list the measured material presets (Jensen et al. 2001)")
+    d = commands["doctor"]
+    d.add_argument("--install-validator", action="store_true",
+                   help="npm install the Khronos glTF-Validator into the per-user folder "
+                        "($XDG_DATA_HOME/sssbake/node_modules), then check")
+    d.set_defaults(func=_doctor)
+
+    p = commands["presets"]
     _profile_argument(p, BAKE_DEFAULTS.profile)
     p.set_defaults(func=_presets)
     return parser
@@ -492,7 +567,7 @@ def _technique_arguments(parser) -> None:
 
 
 def _profile_argument(parser, default: str | None = None) -> None:
-    from sssbake.pipeline.core.materials import PROFILE_MODELS
+    from sssbake.pipeline.core.profile_models import PROFILE_MODELS
     from sssbake.pipeline.options import BAKE_DEFAULTS
 
     parser.add_argument("--profile", choices=PROFILE_MODELS, default=default,
@@ -540,7 +615,8 @@ def _early_fork_server(argv: list[str]) -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     _early_fork_server(argv)
-    args = build_parser().parse_args(argv)
+    # a command's arguments only where one is given: ``sssbake --help`` imports no technique
+    args = build_parser(bool(argv) and argv[0] in COMMANDS).parse_args(argv)
     try:
         return args.func(args)
     except SssbakeError as e:

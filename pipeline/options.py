@@ -1,7 +1,7 @@
 """Bake options: one dataclass and its defaults, read by both the API and the CLI.
 
 `BakeOptions` holds the general options, written out here, and every registered technique's
-options (`registry.TECHNIQUES`, each its ``options_type``) flattened as ``<technique>_<field>``:
+options (`registry.ENTRIES`, each its ``options_type``) flattened as ``<technique>_<field>``:
 those are the TOML keys and, with dashes, the ``bake`` flags. A technique registered before this
 module is first imported gets its fields, flags and checks without a change here.
 """
@@ -14,10 +14,9 @@ import sys
 import threading
 from dataclasses import Field, asdict, dataclass, field, fields, make_dataclass, replace
 
-from sssbake.pipeline.core.materials import DEFAULT_PROFILE, PROFILE_MODELS, MaterialError, material_from_spec
-from sssbake.pipeline.core.ranges import Range, shown
-from sssbake.pipeline.mesh.atlas import RESOLUTION
-from sssbake.pipeline.mesh.scale import SCALE_MM
+from sssbake.pipeline.core.profile_models import DEFAULT_PROFILE, PROFILE_MODELS
+from sssbake.pipeline.core.ranges import SCALE_MM, Range, shown
+from sssbake.pipeline.mesh.atlas_resolution import RESOLUTION
 from sssbake.pipeline.techniques import registry
 
 OPAQUE = "opaque"
@@ -26,7 +25,7 @@ TECHNIQUES = registry.NAMES
 #: Per-asset limits (`asset_process`), sized for the 800k-vertex dragon (dragon_subdiv2.ply, skin2 at
 #: 10 mm, default techniques: screen) on 2 shared cores: 430 s and 1.79 GiB peak resident memory of
 #: the batch's process tree (the atlas 405 s of it). A prt bake of it (K = 200 took 64 s and 4.6 GB at
-#: 200k vertices, README) scales to about 4x that memory, hence 16 GiB; an hour is 8x the measured bake.
+#: 200k vertices, docs/techniques/prt.md) scales to about 4x that memory, hence 16 GiB; an hour is 8x the measured bake.
 ASSET_TIMEOUT_S = 3600.0
 ASSET_MEMORY_GIB = 16.0
 #: Fields that bound a bake's worker but do not shape its outputs: no part of `BakeOptions.to_json`,
@@ -141,7 +140,7 @@ class _BakeOptions:
 
     def technique_options(self, name: str):
         """The options of the technique called `name`, as its ``options_type`` dataclass."""
-        options_type = registry.technique(name).options_type
+        options_type = registry.entry(name).options_type
         return options_type(**{f.name: getattr(self, f"{name}_{f.name}") for f in fields(options_type)})
 
     def to_json(self) -> dict:
@@ -172,7 +171,7 @@ BakeOptions = make_dataclass(
     "BakeOptions",
     [*(_copied(f, f.name) for f in fields(_General)),
      *(_copied(f, f"{t.name}_{f.name}", technique=t.name, option=f.name)
-       for t in registry.TECHNIQUES for f in fields(t.options_type)),
+       for t in registry.ENTRIES for f in fields(t.options_type)),
      *(_copied(f, f.name) for f in fields(_Limits))],
     bases=(_BakeOptions,), frozen=True,
     # pickled into batch workers: found by module and name
@@ -241,7 +240,7 @@ def check_options(o: BakeOptions) -> None:
         raise ValueError(f"unknown technique(s) {shown(unknown)}; available: {list(TECHNIQUES)}, auto or none")
     if "auto" in o.techniques and len(o.techniques) > 1:
         raise ValueError("techniques: auto plans every technique itself; give it alone")
-    for t in registry.TECHNIQUES:
+    for t in registry.ENTRIES:
         o.technique_options(t.name).check()
     missing = [r for r in o.allow_roots if not os.path.isdir(r)]
     if missing:
@@ -262,6 +261,9 @@ _MATERIAL_PROBLEMS: dict[tuple, str | None] = {}
 def check_material(spec, name: str, profile: str) -> None:
     """Raise ValueError (`material_from_spec`'s one line) when the material `spec` called `name`
     is impossible under the profile model `profile`; ``"opaque"`` is a material."""
+    # numpy's: imported by a check, not with this module, which the CLI's help reads
+    from sssbake.pipeline.core.materials import MaterialError, material_from_spec
+
     if isinstance(spec, str) and spec.lower() == OPAQUE:
         return
     try:

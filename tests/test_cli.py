@@ -102,11 +102,83 @@ def test_a_damaged_cache_entry_is_recomputed_and_reported(tmp_path):
 
 def test_inspect_shows_thickness(baked_samples, capsys):
     _, out, _ = baked_samples
-    assert main(["inspect", str(out / "sphere.glb")]) == 0
+    assert main(["inspect", str(out / "sphere.glb"), "--json"]) == 0
     shown = json.loads(capsys.readouterr().out)
     assert "_THICKNESS" in json.dumps(shown) and shown["meshes"][0]["sssbake"]["prt"]["technique"] == "prt"
-    assert main(["inspect", str(out / "sphere.usdc")]) == 0
+    mesh = shown["meshes"][0]
+    ref = mesh["primitives"][0]["attributes"]["_SSS_PRT_REF"]["bytesPerVertex"]
+    assert shown["footprint"]["techniques"]["prt"]["attributes"] == ref * (1 + len(mesh["sssbake"]["prt"]["attributes"]["dq"]))
+    assert main(["inspect", str(out / "sphere.usdc"), "--json"]) == 0
     assert "primvars:sss:thickness" in capsys.readouterr().out
+
+
+def test_inspect_prints_a_summary_and_refuses_files_without_sssbake_data(baked_samples, tmp_path, capsys):
+    import pygltflib
+
+    _, out, _ = baked_samples
+    assert main(["inspect", str(out / "sphere.glb"), "--json"]) == 0
+    prt = json.loads(capsys.readouterr().out)["footprint"]["techniques"]["prt"]
+    for name in ("sphere.glb", "sphere.usdc"):
+        assert main(["inspect", str(out / name)]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        assert lines[0].startswith(f"{out / name}: sssbake schema 2.")
+        assert lines[1].startswith("mesh ") and " vertices, 1 mm per unit" in lines[1]
+        assert "(marble): fallback " in lines[2]
+        assert lines[3] == f"  prt       {prt['attributes']:.1f} B/vertex attributes, {prt['total']:.1f} with tables"
+        assert prt["tables"] > 0
+        assert lines[-1].startswith("file: ")
+    # a glTF with no sssbake data (a tool known to strip it would be named: test_sssbake_extension), refused by
+    # inspect as by verify
+    gltf = pygltflib.GLTF2.load(str(out / "sphere.glb"))
+    gltf.extensions, gltf.extensionsUsed = {}, []
+    for mesh in gltf.meshes:
+        mesh.extensions = {}
+        for prim in mesh.primitives:
+            for key in [k for k in vars(prim.attributes) if k.startswith("_")]:
+                setattr(prim.attributes, key, None)
+    for material in gltf.materials:
+        material.extensions = {}
+    gltf.asset.generator = "some exporter"  # no tool known to strip sssbake data (those are named instead)
+    gltf.save(str(tmp_path / "stripped.glb"))
+    for command in ("inspect", "verify"):
+        assert main([command, str(tmp_path / "stripped.glb")]) == 1
+        assert capsys.readouterr().err == (f"error: {tmp_path / 'stripped.glb'}: no SSSBAKE_subsurface data: not a "
+                                           "file sssbake baked (bake the asset with sssbake), or one a tool stripped "
+                                           "it from\n")
+
+
+def test_help_imports_no_technique():
+    """`sssbake --help` lists the commands without building their arguments, whose defaults import
+    every technique (numpy, scipy, numba)."""
+    probe = """
+import sys
+from sssbake.pipeline.cli import main
+try:
+    main(['--help'])
+except SystemExit:
+    pass
+print('numpy' in sys.modules, 'sssbake.pipeline.techniques.registry' in sys.modules)
+"""
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert "inspect" in done.stdout and done.stdout.split()[-2:] == ["False", "False"]
+
+
+@pytest.mark.parametrize("command", ["bake", "plan", "tradeoff"])
+def test_command_help_imports_no_numerical_stack(command):
+    """A command's ``--help`` builds its flags from the techniques' entries and options modules
+    (`registry.ENTRIES`), not from their implementations, which import scipy, numba, trimesh, USD and
+    pygltflib (~1 s)."""
+    probe = f"""
+import sys
+from sssbake.pipeline.cli import main
+try:
+    main([{command!r}, '--help'])
+except SystemExit:
+    pass
+print(sorted(m for m in ('scipy', 'numba', 'trimesh', 'embreex', 'pxr', 'pygltflib') if m in sys.modules))
+"""
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert "usage: sssbake" in done.stdout and done.stdout.splitlines()[-1] == "[]", done.stdout[-300:]
 
 
 def test_bad_inputs_fail_alone_and_leave_nothing(tmp_path, capsys):
@@ -165,10 +237,11 @@ def test_parallel_jobs_match_serial(baked_samples, tmp_path):
         assert (tmp_path / f"{name}.glb").read_bytes() == (out / f"{name}.glb").read_bytes()
 
 
-def test_prt_bake_writes_validated_readable_data(baked_samples, tmp_path):
+def test_prt_bake_writes_validated_readable_data(baked_samples, tmp_path, capsys):
     import numpy as np
 
     from sssbake.pipeline.techniques.prt.compress import decode_at_directions
+    from sssbake.pipeline.techniques.prt.decode import bytes_per_vertex
     from sssbake.pipeline.techniques.prt.reader import read_prt_glb, read_prt_usd
 
     src, _, _ = baked_samples
@@ -186,6 +259,15 @@ def test_prt_bake_writes_validated_readable_data(baked_samples, tmp_path):
     q = decode_at_directions(from_glb)
     np.testing.assert_array_equal(q, decode_at_directions(from_usd))
     assert np.all(np.isfinite(q)) and abs(q.max() - prt_report["qMax"]) <= 0.1 * prt_report["qMax"]
+    # the planner's bytes per vertex (prt's byte budget, `decode.bytes_per_vertex`) is the file's
+    # (`footprint`): on the data read back, whose vertices are the render vertices, the same figures; the
+    # bake's report spreads the same table bytes over the welded surface's fewer vertices
+    assert main(["inspect", str(tmp_path / "sphere.glb"), "--json"]) == 0
+    used = json.loads(capsys.readouterr().out)["footprint"]["techniques"]["prt"]
+    planned = bytes_per_vertex(from_glb)
+    assert used["attributes"] == planned["per_vertex"] == prt_report["bytesPerVertex"]["per_vertex"] == 12.0 * 5
+    assert used["tables"] == pytest.approx(planned["tables"]) and used["total"] == pytest.approx(planned["total"])
+    assert prt_report["bytesPerVertex"]["tables"] > used["tables"] > 0
 
 
 def test_unknown_technique_is_a_clear_error(tmp_path, capsys):

@@ -19,6 +19,7 @@ LAYERS = (
     ("pipeline.options", "pipeline.config"),
     ("pipeline.planning",),
     ("pipeline.bake", "pipeline.verify", "pipeline.view"),
+    ("pipeline.doctor",),  # checks the run-time parts the layers below need: the validator, three.js, EGL
     ("pipeline.cli",),
 )
 

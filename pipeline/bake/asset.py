@@ -332,14 +332,14 @@ def _extra_outputs(options: BakeOptions) -> dict[str, Callable[[BakedAsset], Bak
 def _up_to_date(outputs: tuple[Path, ...], key: str, path: Path, options: BakeOptions) -> dict | None:
     """The old report when every output exists (the .usdc's thickness textures too), its `job_key` is
     `key`, its dependencies hold and its outputs have no validation errors of their own (a bake
-    never leaves such outputs, `_write`; an older one did)."""
+    never leaves such outputs, `_write`; an older one did), nor skipped a validator that is there now."""
     if not all(p.exists() for p in outputs):
         return None
     try:
         old = json.loads(outputs[2].read_text())
         # by name beside the .usdc, as it references them: the folder may have moved
         textures = [outputs[1].parent / Path(t).name for t in old["bytes"]["usdc"].get("textures", [])]
-        if _invalid(old.get("validation", {})):
+        if _invalid(old.get("validation", {})) or _validator_installed_since(old["validation"]):
             return None
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
@@ -666,6 +666,15 @@ def _write(b: _Baking, asset: BakedAsset, outputs: tuple[Path, ...], extra: dict
     return report
 
 
+def _validator_installed_since(validation: dict) -> bool:
+    """Whether outputs written unvalidated for want of node or gltf-validator could be validated now."""
+    if not any(v.get("validator_missing") for v in validation.values()):
+        return False  # the common case: nothing to look for, no lookup
+    from sssbake.exporters.gltf_validator import validator_available
+
+    return validator_available()
+
+
 def _invalid(validation: dict) -> str:
     """What `_validate`'s `validation` finds wrong with the outputs themselves, inherited problems and
     warnings aside: per format with errors, their count and the first; ``""`` when none has any."""
@@ -686,7 +695,10 @@ def _validate(runner: StageRunner, glbs: dict[str, Path], usdc: Path, options: B
     An output message is ``"inherited": true`` when the source's report has its code, or when it is
     about the data of one of the first `copied_images` images (the source's, copied byte for byte:
     an OBJ's PNG is not validated as input). Per glTF output: ``errors``/``warnings`` count sssbake's
-    own, ``inherited_errors``/``inherited_warnings`` the inherited ones, ``input`` the source's counts.
+    own, ``inherited_errors``/``inherited_warnings`` the inherited ones, ``input`` the source's counts;
+    or, where the validator could not run (`ValidatorUnavailable`), only ``skipped``, the one-line
+    reason, and ``validator_missing``: true for no node or no gltf-validator, false for a hierarchy
+    past the depth it checks.
     """
     # glTF-Validator's codes about an image's bytes (not about the JSON that describes it)
     image_data_codes = {"IMAGE_DATA_INVALID", "IMAGE_FEATURES_UNSUPPORTED", "IMAGE_MIME_TYPE_INVALID",
@@ -694,7 +706,7 @@ def _validate(runner: StageRunner, glbs: dict[str, Path], usdc: Path, options: B
     if not options.validate:
         runner.skip("validate", "turned off (--no-validate)")
         return {}
-    from sssbake.exporters.gltf_validator import ValidatorUnavailable, validate_many
+    from sssbake.exporters.gltf_validator import ValidatorLimit, ValidatorUnavailable, validate_many
     from sssbake.exporters.usd_validator import validate_usd
 
     out = {}
@@ -731,8 +743,11 @@ def _validate(runner: StageRunner, glbs: dict[str, Path], usdc: Path, options: B
                 if source_report is not None:
                     out[name]["input"] = {"errors": source_report.num_errors, "warnings": source_report.num_warnings,
                                           "infos": source_report.num_infos}
-        except ValidatorUnavailable as e:
+        except ValidatorUnavailable as e:  # no node or no validator: the files are written unchecked, and say so
             warnings.append(f"glTF validation skipped: {e}")
+            # `_up_to_date` bakes them again once a validator is installed; a hierarchy too deep stays too deep
+            missing = not isinstance(e, ValidatorLimit)
+            out.update({name: {"skipped": str(e), "validator_missing": missing} for name in glbs})
         u = validate_usd(usdc)
         out["usd"] = {"errors": len(u.errors), "warnings": len(u.warnings), "messages": list(u.errors)}
     return out

@@ -296,6 +296,10 @@ def _record_result(record: dict, job: Job, result) -> None:
 
     record["outputs"] = [str(p) for p in result.outputs]
     record["warnings"] = len(result.report.get("warnings", []))
+    # why its glTF outputs were not validated (`asset._validate`'s ``skipped``), for the batch's one line
+    skipped = [v["skipped"] for v in result.report.get("validation", {}).values() if "skipped" in v]
+    if skipped:
+        record["validation_skipped"] = skipped[0]
     record["worse_than_lambert"] = worse_than_lambert(result.report)
     # outputs with validation errors of their own fail the bake and are never left (`asset._write`)
     record["status"] = "up-to-date" if result.up_to_date else "ok"

@@ -43,17 +43,19 @@ CHECK_MAX_VERTICES = 300_000
 
 
 def check_technique(glb: Path, technique: str, vertices: int, out_dir: Path) -> dict:
-    """`verify.verify_file`'s figures of `technique` in `glb` at the pilot's `PILOT_SIZE`², the reference
+    """`verify.verify_file`'s figures of `technique` in `glb` at the pilot's `PILOT_SIZE`² (its pictures at
+    the report's `html_report.PICTURE_SIZE`²: the report shows the kept attempt's), the reference
     summed through clusters above `tradeoff.CLUSTERED_ABOVE` `vertices` (the exact sum takes
     minutes there); ``{"error": line}`` when the file holds nothing it can draw, ``{"skipped": line}``
     above `CHECK_MAX_VERTICES`."""
+    from sssbake.pipeline.verify.html_report import PICTURE_SIZE
     from sssbake.pipeline.verify.verify import verify_file
 
     if vertices > CHECK_MAX_VERTICES:
         return {"skipped": f"not checked: {vertices} vertices, over the check's {CHECK_MAX_VERTICES} (its reference "
                            f"would need about {vertices * 50e3 / 1e9:.2g} GB)"}
     try:
-        return verify_file(glb, technique, size=PILOT_SIZE, out_dir=out_dir, frames=3,
+        return verify_file(glb, technique, size=PILOT_SIZE, out_dir=out_dir, frames=3, picture_size=PICTURE_SIZE,
                            reference_sum="clustered" if vertices > CLUSTERED_ABOVE else "exact")
     except ValueError as error:
         return {"error": str(error).splitlines()[0]}

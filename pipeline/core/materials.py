@@ -14,17 +14,13 @@ from importlib import resources
 import numpy as np
 
 from sssbake.pipeline.core.errors import SssbakeError
+from sssbake.pipeline.core.profile_models import DEFAULT_PROFILE, PROFILE_MODELS
 from sssbake.pipeline.core.ranges import Range, shown
 
 
 class MaterialError(SssbakeError, ValueError):
     """A material's parameters are impossible or unknown."""
 
-
-#: Diffusion profile models (`profile.py`): the Monte Carlo-matched default and the classical dipole
-#: of Jensen et al. 2001, kept to reproduce the papers.
-PROFILE_MODELS = ("montecarlo", "dipole")
-DEFAULT_PROFILE = "montecarlo"
 
 # The ranges a material's numbers may take (docs/ranges.md gives them with the options').
 #: Each channel's σ'_s and σ_a. The profile peaks at R_d(0) ≈ 600 σ'_t² per mm² (its shallowest pole

@@ -59,6 +59,14 @@ class Range:
             raise ValueError(f"{name} must be {self.says or 'in ' + self.text()}, got {shown(value)}")
 
 
+#: Millimetres per file unit (`scale.resolve_scale_mm`), a nanometre to a kilometre. What breaks is
+#: the object's size in mm: the 20-unit sample sphere bakes finite with every technique from 1e-9 to
+#: 1e12 mm per unit (below, a render's float32 image overflows by 1e-12 and the escape walk loses all
+#: light by 1e-20; above, embree's float32 coordinates overflow by 1e40), so the ends hold for
+#: objects from 0.1 to 1e5 units across.
+SCALE_MM = Range(1e-6, 1e6, "a 20-unit object bakes finite from 1e-9 to 1e12", "mm per file unit")
+
+
 def shown(value, limit: int = 60) -> str:
     """``repr(value)`` cut to `limit` characters: a refused value is quoted in a one-line message,
     and a config may hold a 10,000-digit number or a 1 MB string."""

@@ -68,6 +68,7 @@ from sssbake.pipeline.core.scatter_kernels import (
     pair_counts,
     shared_rows_product,
 )
+from sssbake.pipeline.core.scatter_options import SCATTER_DEFAULTS, ScatterOptions
 from sssbake.pipeline.core.surface import vertex_areas
 
 #: Candidate pairs per block of rows a thread builds at once: small enough that the threads share
@@ -77,43 +78,6 @@ from sssbake.pipeline.core.surface import vertex_areas
 ENTRIES_PER_CHUNK = 100_000
 #: Step in ln D of the far-field kernel table.
 TABLE_STEP = 1e-3
-
-
-@dataclass(frozen=True)
-class ScatterOptions:
-    """Knobs of the hierarchical gather.
-
-    Attributes
-    ----------
-    energy_dropped : float
-        Fraction of the total diffuse reflectance R_d a source may lose to the truncation radius.
-    separation : int
-        Cells within this many cells (per axis) of each other are near. The cluster error falls
-        roughly as 1/separation²; the entries per vertex and level grow as ~(2·separation + 1)².
-    vertices_per_cell : float
-        Sets the finest cell size h_0 = sqrt(vertices_per_cell · area / n).
-    hierarchy : bool
-        False sums every pair within the radius exactly (O(N·neighbours); for tests and checks).
-    float32 : bool
-        Store the matrices and run the products in float32 (half the memory, ~1.5× faster);
-        the rounding is ~1e-6 of q, far below the clustering error (tests measure it).
-    threads : int
-        Worker threads for building and applying (the compiled loops release the GIL).
-    block : int
-        Signals per thread of one pass of `ScatterOperator.apply`: a pass reads the operator once
-        for threads · block signals (the threads share its rows), and bounds the pass's temporaries.
-    """
-
-    energy_dropped: float = 1e-2
-    separation: int = 2
-    vertices_per_cell: float = 1.0
-    hierarchy: bool = True
-    float32: bool = True
-    threads: int = 2
-    block: int = 32
-
-
-SCATTER_DEFAULTS = ScatterOptions()
 
 
 @dataclass(frozen=True, eq=False)

@@ -41,14 +41,13 @@ import numpy as np
 
 from sssbake.pipeline.core.errors import SssbakeError
 from sssbake.pipeline.core.morton import morton_codes
+from sssbake.pipeline.mesh.atlas_resolution import RESOLUTION
 
 # Jitter of the retry, as a fraction of the bounding-box diagonal (see the module docstring).
 JITTER = 1e-4
 JITTER_SEED = 0
 # Bounding-box diagonal xatlas sees (see the module docstring).
 DIAGONAL = 100.0
-#: Atlas texels per side unless asked otherwise (the bake's ``atlas_resolution`` default).
-RESOLUTION = 512
 #: Atlas sides are multiples of this: block-compressed textures (BCn, ETC, ASTC 4x4, KTX2/Basis)
 #: need whole 4x4 blocks. An exact ``resolution`` would take a second xatlas charting of the mesh
 #: (minutes on large ones: xatlas' own size is an estimate), so the atlas is padded instead.

@@ -5,15 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from sssbake.pipeline.core.errors import AssetError
-from sssbake.pipeline.core.ranges import Range
+from sssbake.pipeline.core.ranges import SCALE_MM
 from sssbake.pipeline.mesh.scene import Scene
-
-#: Millimetres per file unit, a nanometre to a kilometre. What breaks is the object's size in mm:
-#: the 20-unit sample sphere bakes finite with every technique from 1e-9 to 1e12 mm per unit
-#: (below, a render's float32 image overflows by 1e-12 and the escape walk loses all light by 1e-20;
-#: above, embree's float32 coordinates overflow by 1e40), so the ends hold for objects from 0.1 to
-#: 1e5 units across.
-SCALE_MM = Range(1e-6, 1e6, "a 20-unit object bakes finite from 1e-9 to 1e12", "mm per file unit")
 
 
 def resolve_scale_mm(scene: Scene, scale_mm: float | None) -> tuple[float, str]:

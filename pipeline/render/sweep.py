@@ -3,7 +3,6 @@ worst-light RMSE, the JSON, CSV and plot each sweep writes, and the pieces of th
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import os
@@ -196,15 +195,6 @@ def write_outputs(result: dict, stem: Path, plot) -> None:
         writer.writeheader()
         writer.writerows(rows)
     plot(rows, f"{stem}.png")
-
-
-def add_sweep_argument(parser: argparse.ArgumentParser, flag: str, kind: type, default: tuple, what: str) -> None:
-    """A ``tradeoff`` flag taking the values a sweep runs through, comma-separated (`default` if absent)."""
-    def parse(text: str) -> tuple:
-        return tuple(kind(v) for v in text.split(","))
-
-    parse.__name__ = f"comma-separated {kind.__name__}"  # argparse names the type in its error
-    parser.add_argument(flag, type=parse, default=default, help=f"{what} (default {','.join(map(str, default))})")
 
 
 def per_vertex_size(row: dict) -> str:

@@ -4,8 +4,9 @@ over the registry instead of naming techniques.
 
 A technique's object is assembled in ``techniques/<name>/technique.py`` from one mixin per concern,
 each in the module of that concern (``stage.py``: bake; ``verify.py``: reader, render items and
-verify figures; ``pilot.py``: the planner's candidates; ``tradeoff.py``: the sweep and its CLI
-arguments) and its options dataclass (``options.py``). Techniques never import the layers above
+verify figures; ``pilot.py``: the planner's candidates; ``tradeoff.py``: the sweep) and its entry
+(``entry.py``, `entry.TechniqueEntry`: its name, its options dataclass from ``options.py`` and its
+tradeoff flags, which `registry` lists without importing the rest). Techniques never import the layers above
 them (`sssbake.pipeline.options`, ``bake``, ``planning``, ``verify``, the CLI): those pass them
 what they need.
 """
@@ -23,6 +24,7 @@ from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.atlas import Atlas
 from sssbake.pipeline.mesh.baked import BakedAsset
 from sssbake.pipeline.mesh.scene import Primitive
+from sssbake.pipeline.techniques.entry import TechniqueEntry
 
 #: A technique baked per mesh, on its welded surface (and atlas).
 MESH = "mesh"
@@ -30,24 +32,23 @@ MESH = "mesh"
 MATERIAL = "material"
 
 
-class Technique:
-    """The protocol each registered technique implements (see the module docstring).
+class Technique(TechniqueEntry):
+    """The protocol each registered technique implements (see the module docstring), beyond its
+    entry's (`entry.TechniqueEntry`: ``name``, ``options_type``, ``add_tradeoff_arguments``).
 
     Class attributes
     ----------------
-    name : str
-        The name in ``--techniques``, in the report's blocks and in ``extras.sssbake``; its options
-        are the `BakeOptions` fields, TOML keys and flags ``<name>_<field>`` / ``--<name>-<field>``.
     scope : str
         `MESH` or `MATERIAL`.
     stage_version : int
         Bump when the bake's output for the same input changes (part of its stage-cache key).
     needs_atlas : bool
         Whether its bake reads the mesh's atlas (its cache key then follows the atlas's).
-    options_type : type
-        Its frozen options dataclass; field defaults are the CLI's and the TOML's defaults.
     draw_unit : str
         What verify draws one render item of: ``"primitive"`` or ``"mesh"`` (all primitives of a mesh).
+    vertex_keys : tuple of str
+        Prefixes of the `VertexAttribute` keys its `vertex_attributes` write (``"sss:prt:"``):
+        how `footprint` tells its attributes in a written file from other techniques' (default none).
     dependent_stages : dict of str to str
         Stages that run only inside this technique's bake, each with the reason the report's
         ``stages`` records when the technique runs for nothing in the asset (default none).
@@ -84,8 +85,6 @@ class Technique:
         The technique's data in a .glb, per primitive, as its ``reader.py`` decodes it.
     read_usd(path) -> dict of str to data
         The same data in a .usdc, per mesh prim path (per material prim for `MATERIAL` scope).
-    bytes_per_vertex(block: dict) -> float
-        Bytes per vertex from one of its blocks in the bake report.
     verify_items(unit: VerifyUnit, data: dict, runtime: dict) -> (dict, dict)
         The render item verify compares with the reference for one draw unit, and the one it
         times (the runtime as it ships); `data` is `read`'s, `runtime` verify's settings
@@ -118,8 +117,6 @@ class Technique:
         dipole serves.
     Tradeoff hooks (``<Cls>Tradeoff`` in ``tradeoff.py``)
     ------------------------------------------------------
-    add_tradeoff_arguments(parser: argparse.ArgumentParser)
-        The ``sssbake tradeoff`` arguments of its sweep (default none).
     run_tradeoff(path, mm_per_unit: float, material: Material, out_dir, args) -> dict
         Sweep its knobs on the largest mesh of `path`: ``rows`` (each with ``sweep``, ``seconds``,
         ``rmse_image``), ``frame_ms_sss``, ``frame_ms_plain``, ``frame_ratio``, ``outputs``
@@ -128,13 +125,12 @@ class Technique:
         One row's knobs and size, as ``sssbake tradeoff`` prints it.
     """
 
-    name: ClassVar[str]
     scope: ClassVar[str]
     stage_version: ClassVar[int]
     needs_atlas: ClassVar[bool]
-    options_type: ClassVar[type]
     draw_unit: ClassVar[str]
     dependent_stages: ClassVar[dict[str, str]] = {}
+    vertex_keys: ClassVar[tuple[str, ...]] = ()
     # verify and pilot defaults: the dipole is the reference, no figures of its own, no pilot
     self_reference_label: ClassVar[str | None] = None
     pilot_measures_all: ClassVar[bool] = True
@@ -160,9 +156,6 @@ class Technique:
         return []
 
     def pilot_reference(self, item: dict, surface: Surface, options, memo: dict) -> dict | None:
-        return None
-
-    def add_tradeoff_arguments(self, parser) -> None:
         return None
 
     def run_tradeoff(self, path, mm_per_unit: float, material: Material, out_dir, args) -> dict:

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from sssbake.exporters.gltf_tables import SssbakeGltf, load_sssbake_gltf
+from sssbake.exporters.inspect_gltf import inspect_glb
 from sssbake.pipeline.core.errors import VerifyError
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.reference import Light, reference_scattering
@@ -43,6 +44,7 @@ from sssbake.pipeline.render.image_metrics import (
 )
 from sssbake.pipeline.render.items import PLAIN_ALBEDO, merged_primitive
 from sssbake.pipeline.render.renderer import DEFAULT_LIGHT, Renderer, RenderLight, fit_camera
+from sssbake.pipeline.techniques.footprint import footprint
 from sssbake.pipeline.techniques.registry import BY_NAME, NAMES
 from sssbake.pipeline.techniques.technique import VerifyShot, VerifyUnit
 from sssbake.pipeline.verify.checked_reference import check_figures, checked_reference
@@ -53,7 +55,7 @@ REFERENCES = ("exact", "clustered", "checked")
 def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAULT_LIGHT, size: int = 512,
                 out_dir: str | os.PathLike | None = None, frames: int = 20, light_pos=None,
                 reference_sum: str = "exact", lpv_steps: int | None = None, stock_viewer: bool = False,
-                references: dict | None = None) -> dict:
+                references: dict | None = None, picture_size: int | None = None) -> dict:
     """Render `path` (.glb) with `technique`'s runtime and with the offline reference.
 
     Parameters
@@ -77,7 +79,10 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         verifies each technique of an asset against one), filled here; a draw unit of the same
         file under the same world matrix, light and `reference_sum` reads its own from it.
     size : int
-        Image width and height in pixels.
+        Image width and height in pixels of the figures.
+    picture_size : int, optional
+        Width and height of the PNGs' images (default `size`): a report's pictures larger than the
+        images its figures are measured on, drawn again at the figures' exposure.
     out_dir : path, optional
         Where the PNGs go (default: next to the file).
 
@@ -88,11 +93,11 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         (None for a directional light), ``reference`` (`reference_sum`, or the technique's
         ``self_reference_label`` where it compared with its own reference; see
         `reference_label`), ``rmse_image``, ``rmse_object``, ``rmse_object_lambert``,
-        ``lambert_scale``, ``bytes_per_vertex``, ``bake_seconds``, ``frame_ms_sss``,
+        ``lambert_scale``, ``bytes_per_vertex`` (`footprint`'s ``total``), ``bake_seconds``, ``frame_ms_sss``,
         ``frame_ms_plain``, ``reference_seconds``, ``seconds`` (the whole verification),
-        ``exposure``, ``image_size``, ``pngs``, with a ``"checked"`` reference ``reference_check``
-        (`checked_reference.check_figures`: the sample, and how far the RMSE figures can move from
-        the exact reference's, with its 95 % interval), and
+        ``exposure``, ``image_size``, ``picture_size`` (the PNGs'), ``pngs``, with a ``"checked"``
+        reference ``reference_check`` (`checked_reference.check_figures`: the sample, and how far the
+        RMSE figures can move from the exact reference's, with its 95 % interval), and
         the technique's own figures (``verify_figures``): spectral ``spectral_scale`` (the fit
         applied to its image), ``rmse_object_naive`` and ``naive_scale`` (Patro's naive normals,
         computed here from the file's geometry and material with the precompute's defaults), its
@@ -179,45 +184,61 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
     if not self_references and not any(np.any(it["q"] > 0) for it in ref_items):
         raise VerifyError(f"verify: {path}: the light reaches no vertex (inside the object, or behind it)")
 
-    renderer = Renderer((size, size))
     world_points = np.concatenate([(it["model"][:3, :3] @ it["positions"].T).T + it["model"][:3, 3] for it in sss_items])
     camera = fit_camera(world_points)
     if point is None:
         light = RenderLight(False, tuple(light_world), 1.0)
     else:
         light = RenderLight(True, tuple(point), intensity, next(iter(mm_world)))
-    image, mask = renderer.render(sss_items, camera, light)
-    reference, ref_mask = renderer.render(ref_items, camera, light)
-    if self_references and not np.any(reference[ref_mask] > 0):
-        raise VerifyError(f"verify: {path}: the light reaches no cell (inside the object, or behind it)")
-    exposure = shared_exposure(reference, ref_mask)
 
-    def fitted(drawn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(H, W, 3) `drawn` times its per-channel best fit (3,) to the reference, and the fit."""
-        fit = best_fit_scale(drawn, reference, ref_mask)
-        return drawn * fit, fit
+    def draw(side: int, exposure: float | None) -> tuple[VerifyShot, np.ndarray, list, dict, np.ndarray, np.ndarray,
+                                                          float]:
+        """Everything compared at `side`²: the shot (its exposure `exposure`, or the reference's
+        `shared_exposure` for None), the technique's image, pictures and figures
+        (`Technique.verify_figures`) and best-fit Lambert's image, scale and RMSE."""
+        renderer = Renderer((side, side))
+        image, mask = renderer.render(sss_items, camera, light)
+        reference, ref_mask = renderer.render(ref_items, camera, light)
+        if self_references and not np.any(reference[ref_mask] > 0):
+            raise VerifyError(f"verify: {path}: the light reaches no cell (inside the object, or behind it)")
+        exposure = shared_exposure(reference, ref_mask) if exposure is None else exposure
 
-    lambert, scale, lambert_error = best_fit_lambert(renderer, lambert_items, camera, light, reference, ref_mask,
-                                                     exposure)
-    shot = VerifyShot(renderer, camera, light, image, reference, ref_mask, ref_mask | mask, exposure, lambert > 0,
-                      fitted)
-    image, pictures, extra = hooks.verify_figures(drawn, sss_items, shot)
-    shown = [reference, image, lambert, *pictures]
+        def fitted(drawn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """(H, W, 3) `drawn` times its per-channel best fit (3,) to the reference, and the fit."""
+            fit = best_fit_scale(drawn, reference, ref_mask)
+            return drawn * fit, fit
+
+        lambert, scale, lambert_error = best_fit_lambert(renderer, lambert_items, camera, light, reference, ref_mask,
+                                                         exposure)
+        shot = VerifyShot(renderer, camera, light, image, reference, ref_mask, ref_mask | mask, exposure, lambert > 0,
+                          fitted)
+        return shot, *hooks.verify_figures(drawn, sss_items, shot), lambert, scale, lambert_error
+
+    measured = draw(size, None)
+    shot, image, pictures, extra, lambert, scale, lambert_error = measured
+    reference, exposure = shot.reference, shot.exposure
+    plain_items = [{k: v for k, v in it.items() if k != "q"} | {"albedo": PLAIN_ALBEDO} for it in lambert_items]
+    frame_ms = {  # timed before a renderer for the pictures exists: one GL context in use
+        # the technique's runtime as it ships (spectral's: the plain shader fed the subsurface normals)
+        "frame_ms_sss": shot.renderer.frame_ms(timed_items, camera, light, frames),
+        # plain: the standard Lambert + specular shader, no SSS data
+        "frame_ms_plain": shot.renderer.frame_ms(plain_items, camera, light, frames)}
+    # the figures stay at `size`² (the budget's and the pilot's); larger pictures are drawn again, as bright
+    big, big_image, big_pictures, _, big_lambert, _, _ = (measured if picture_size in (None, size)
+                                                          else draw(picture_size, exposure))
 
     out_dir = Path(out_dir) if out_dir is not None else path.parent
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = f"{path.stem}.verify.{technique}"
     pngs = {"comparison": str(out_dir / f"{stem}.png"), "difference": str(out_dir / f"{stem}.diff.png")}
-    write_comparison_png(pngs["comparison"], shown, exposure)
-    write_difference_png(pngs["difference"], image, reference, exposure)
+    write_comparison_png(pngs["comparison"], [big.reference, big_image, big_lambert, *big_pictures], exposure)
+    write_difference_png(pngs["difference"], big_image, big.reference, exposure)
     if stock_viewer:
         pngs["stock"] = str(out_dir / f"{stem}.stock.png")
         extra.update(stock_figures(path, [it["positions"] for it in sss_items], camera, light, size, reference,
-                                   ref_mask, exposure, pngs["stock"]))
+                                   shot.reference_mask, exposure, pngs["stock"]))
 
     report = _bake_report(path)
-    technique_reports = list(report.get(technique, {}).values())
-    plain_items = [{k: v for k, v in it.items() if k != "q"} | {"albedo": PLAIN_ALBEDO} for it in lambert_items]
     return {
         "technique": technique,
         "light_dir": light_world.tolist(),
@@ -225,25 +246,43 @@ def verify_file(path: str | os.PathLike, technique: str = "prt", light_dir=DEFAU
         "reference": reference_label(reference_sum, dipole_references, len(self_references),
                                      hooks.self_reference_label),
         "rmse_image": rmse(image, reference, exposure),
-        "rmse_object": rmse(image, reference, exposure, ref_mask | mask),
+        "rmse_object": rmse(image, reference, exposure, shot.mask),
         "rmse_object_lambert": lambert_error,
         "lambert_scale": scale.tolist(),
-        "bytes_per_vertex": hooks.bytes_per_vertex(technique_reports[0]) if technique_reports else None,
+        # attributes and tables per render vertex as the file holds them (`footprint`; 0: data in JSON alone)
+        "bytes_per_vertex": footprint(inspect_glb(path))["techniques"].get(technique, {"total": 0.0})["total"],
         "bake_seconds": report.get("seconds"),
-        # the technique's runtime as it ships (spectral's: the plain shader fed the subsurface normals)
-        "frame_ms_sss": renderer.frame_ms(timed_items, camera, light, frames),
-        # plain: the standard Lambert + specular shader, no SSS data
-        "frame_ms_plain": renderer.frame_ms(plain_items, camera, light, frames),
+        **frame_ms,
         "reference_seconds": reference_seconds,
         **({"reference_check": check_figures(checks, exposure)} if checks else {}),
         "seconds": time.perf_counter() - t_start,
         "exposure": exposure,
         "image_size": [size, size],
+        "picture_size": [picture_size or size] * 2,
         "pngs": pngs,
         **extra,
         **({"reference_resolution": max(r for r, _ in self_references),
             "reference_steps": max(st for _, st in self_references)} if self_references else {}),
     }
+
+
+def held_techniques(path: str | os.PathLike) -> list[str]:
+    """The registered techniques whose data `path` (.glb) holds (`footprint`), in the registry's order:
+    what ``sssbake verify`` checks without ``--technique``.
+
+    Raises
+    ------
+    AssetError
+        The file holds no sssbake data (`inspect_glb`'s `required`), or one of its tables or ``_``
+        attributes is stale.
+    VerifyError
+        It holds the standard fallback alone.
+    """
+    held = [t for t in footprint(inspect_glb(path, required=True))["techniques"] if t in NAMES]
+    if not held:
+        raise VerifyError(f"{path}: holds no technique verify checks, only the standard fallback (bake with "
+                          f"--techniques and one of {', '.join(NAMES)})")
+    return held
 
 
 def light_direction(light_dir) -> np.ndarray:

@@ -5,7 +5,9 @@ reachable (no directory listings, no ``..``). URLs:
 
 ``/`` (the page), ``/viewer.js``, ``/model.glb`` (the one file), ``/runtime_three/…`` (the ES module
 runtime), ``/runtime_shaders/…`` (the GLSL it compiles), ``/three/build/…`` and
-``/three/examples/jsm/…`` (three.js from the checkout's ``node_modules``).
+``/three/examples/jsm/…`` (three.js: the files the page and the runtime import, vendored in the
+package's ``three/`` folder, so that an installed wheel needs no ``node_modules`` and ``npm ci``
+never changes a running viewer under the browser).
 """
 
 from __future__ import annotations
@@ -16,12 +18,15 @@ import threading
 import urllib.parse
 from pathlib import Path
 
-import sssbake.pipeline
 import sssbake.runtime_shaders
+import sssbake.runtime_three
 from sssbake.exporters.gltf_tables import load_sssbake_gltf
 from sssbake.pipeline.core.errors import AssetError, SssbakeError
 
 PAGE = Path(__file__).resolve().parent / "page"
+#: three.js as vendored from npm's ``three`` (the version in its ``VERSION``, the pin in package.json;
+#: ``README.md`` there says which files and how to refresh them), in npm's layout.
+THREE = Path(__file__).resolve().parent / "three"
 EXTENSION = "SSSBAKE_subsurface"
 
 #: Served types; a file with another suffix is a 404 even inside a served folder.
@@ -34,7 +39,7 @@ _TYPES = {
 
 
 class ViewError(SssbakeError):
-    """The viewer cannot start: three.js or the runtime is missing, or the port is taken."""
+    """The viewer cannot start: the install lacks three.js or the runtime, or the port is taken."""
 
     exit_code = 2
 
@@ -57,33 +62,21 @@ def check_glb(path: str | os.PathLike) -> dict:
     return data.gltf
 
 
-def served_folders(checkouts: list[Path] | None = None) -> dict[str, Path]:
-    """URL prefix -> folder for the runtime, the shaders and three.js; `ViewError` when one is missing.
-
-    Parameters
-    ----------
-    checkouts : list of Path, optional
-        Folders to look for ``node_modules/three`` and ``runtime_three/`` in, first match wins;
-        default: the checkout holding the installed package (an editable install) and its parents.
-    """
-    if checkouts is None:
-        package = Path(sssbake.pipeline.__file__).resolve().parent
-        checkouts = [package.parent, *package.parent.parents]
-    three = next((c / "node_modules" / "three" for c in checkouts
-                  if (c / "node_modules" / "three" / "build" / "three.module.js").is_file()), None)
-    if three is None:
-        raise ViewError("three.js not found (node_modules/three); run `npm ci` in the sssbake checkout")
-    runtime = next((c / "runtime_three" for c in checkouts if (c / "runtime_three" / "sssbake-three.js").is_file()),
-                   None)
-    if runtime is None:
-        raise ViewError("the three.js runtime (runtime_three/sssbake-three.js) is not installed; view runs from an "
-                        "sssbake checkout (pip install -e .)")
-    return {
-        "runtime_three/": runtime,
+def served_folders() -> dict[str, Path]:
+    """URL prefix -> folder for the runtime, the shaders and three.js, all inside the installed
+    package; `ViewError` naming the file when an install lacks one (the page would only say that a
+    module failed to load)."""
+    folders = {
+        "runtime_three/": Path(sssbake.runtime_three.__file__).resolve().parent,
         "runtime_shaders/": Path(sssbake.runtime_shaders.__file__).resolve().parent,
-        "three/build/": three / "build",
-        "three/examples/jsm/": three / "examples" / "jsm",
+        "three/build/": THREE / "build",
+        "three/examples/jsm/": THREE / "examples" / "jsm",
     }
+    for needed in (folders["runtime_three/"] / "sssbake-three.js", folders["three/build/"] / "three.module.js"):
+        if not needed.is_file():
+            raise ViewError(f"{needed}: missing from the installed sssbake package; reinstall it "
+                            "(pip install --force-reinstall sssbake, or pip install -e . in a checkout)")
+    return folders
 
 
 def resolve(url_path: str, glb: Path, folders: dict[str, Path]) -> Path | None:

@@ -1,6 +1,8 @@
 """The Khronos glTF-Validator accepts sssbake's output and catches broken files."""
 
+import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pygltflib
@@ -9,7 +11,8 @@ from test_gltf import icosphere_asset
 
 from sssbake.exporters import gltf_validator
 from sssbake.exporters.gltf import UNSIGNED_INT, to_glb, write_glb
-from sssbake.exporters.gltf_validator import ValidatorUnavailable, find_validator, validate_glb, validate_many
+from sssbake.exporters.gltf_validator import ValidatorUnavailable, find_validator, user_folder, validate_glb, \
+    validate_many
 from sssbake.pipeline.mesh.baked import VertexAttribute
 
 
@@ -73,6 +76,7 @@ def test_env_var_names_the_node_modules_folder(tmp_path, monkeypatch):
 
 
 def test_npm_is_asked_only_when_no_local_folder_holds_it(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "no-user-install"))
     asked = []
     monkeypatch.setattr(gltf_validator, "_npm_root_global", lambda: asked.append(1) or tmp_path / "global")
     local = tmp_path / "node_modules"
@@ -91,8 +95,48 @@ def test_npm_is_asked_only_when_no_local_folder_holds_it(tmp_path, monkeypatch):
 
 def test_missing_node_says_how_to_install(monkeypatch):
     monkeypatch.setattr(gltf_validator.shutil, "which", lambda name: None)
-    with pytest.raises(ValidatorUnavailable, match="npm install gltf-validator"):
+    with pytest.raises(ValidatorUnavailable) as e:
         validate_glb(b"glTF")
+    assert str(e.value).startswith("node (Node.js) is not installed: install Node.js and npm (Debian: apt-get install "
+                                   "nodejs npm), then run `sssbake doctor --install-validator` (npm installs "
+                                   f"gltf-validator@{gltf_validator.VALIDATOR_VERSION} in {user_folder()})")
+
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_the_per_user_folder_is_found_and_runs(tmp_path, monkeypatch):
+    """Outside a checkout (no node_modules beside the package or in the working folder) the validator
+    that `sssbake doctor --install-validator` put in $XDG_DATA_HOME/sssbake/node_modules is used."""
+    checkout = REPO / "node_modules" / "gltf-validator"
+    if not checkout.is_dir():
+        pytest.skip("no node_modules/gltf-validator (npm ci) to stand in for a per-user install")
+    monkeypatch.delenv(gltf_validator.ENV_VAR, raising=False)
+    monkeypatch.setattr(gltf_validator, "__file__", str(tmp_path / "site-packages" / "sssbake" / "exporters" / "x.py"))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(gltf_validator, "_npm_root_global", lambda: None)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    with pytest.raises(ValidatorUnavailable, match=f"{tmp_path / 'data' / 'sssbake' / 'node_modules'}.*doctor"):
+        find_validator()
+    (tmp_path / "data" / "sssbake" / "node_modules").mkdir(parents=True)
+    (tmp_path / "data" / "sssbake" / "node_modules" / "gltf-validator").symlink_to(checkout)
+    assert find_validator() == tmp_path / "data" / "sssbake" / "node_modules"
+    assert validate_glb(b'{"asset": {"version": "2.0"}}').validator_version == gltf_validator.VALIDATOR_VERSION
+
+
+def test_the_user_folder_follows_xdg(tmp_path, monkeypatch):
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.delenv("XDG_DATA_HOME", raising=False)
+    assert user_folder() == tmp_path / ".local" / "share" / "sssbake" / "node_modules"
+    monkeypatch.setenv("XDG_DATA_HOME", "relative/data")  # the XDG spec: a relative one is ignored
+    assert user_folder() == tmp_path / ".local" / "share" / "sssbake" / "node_modules"
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    assert user_folder() == tmp_path / "xdg" / "sssbake" / "node_modules"
+
+
+def test_the_installed_version_is_package_lock_s_pin():
+    lock = json.loads((REPO / "package-lock.json").read_text())
+    assert gltf_validator.VALIDATOR_VERSION == lock["packages"]["node_modules/gltf-validator"]["version"]
 
 
 def test_a_warning_message_has_to_json():

@@ -6,7 +6,7 @@ Each bundled sample is baked (with the classical dipole: the fallback is a half-
 model, which the Monte Carlo profile's escape gain is not), verified (the reference, camera, light and exposure are what
 ``sssbake verify`` uses), then drawn by ``tests/js/fallback.html`` with GLTFLoader twice: as
 written, and with transmission set to 0 (what three.js showed before KHR_materials_transmission).
-``python -m pytest -s`` prints the README's table.
+``python -m pytest -s`` prints the table of docs/engines.md ("The standard fallback").
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ def baked(tmp_path_factory):
         shutil.copy(REPO / "samples" / name, src / name)
     # the half-space model the fallback is (a slab of the median thickness): the classical dipole, which
     # the bake gives no escape gain; with the Monte Carlo profile's gain the thin slab's reference is
-    # 1.8 x brighter and the fallback loses to opaque there (README, docs/fidelity.md)
+    # 1.8 x brighter and the fallback loses to opaque there (docs/engines.md, docs/fidelity.md)
     batch = run_batch([src], root / "out", load_config(REPO / "samples" / "sssbake.toml"),
                       {"techniques": ("prt",), "profile": "dipole"}, cache_dir=None, progress=False)
     assert not batch["failed"], batch

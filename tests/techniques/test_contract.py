@@ -9,10 +9,13 @@ import numpy as np
 import pytest
 import trimesh
 
+from sssbake.exporters.inspect_gltf import inspect_glb
+from sssbake.exporters.inspect_usd import inspect_usdc
 from sssbake.pipeline.bake.asset import STAGE_VERSIONS, bake_asset
 from sssbake.pipeline.bake.cache import StageCache
 from sssbake.pipeline.cli import build_parser
 from sssbake.pipeline.options import BAKE_DEFAULTS, BakeOptions
+from sssbake.pipeline.techniques.footprint import footprint
 from sssbake.pipeline.techniques.registry import NAMES, TECHNIQUES
 from sssbake.pipeline.verify.verify import verify_file
 
@@ -80,20 +83,23 @@ def test_bakes_exports_reads_back_and_verifies(technique, ball, tmp_path):
     result = bake_asset(ball, options, tmp_path / "ball", StageCache(None))
     report = result.report
     glb, usdc = tmp_path / "ball.glb", tmp_path / "ball.usdc"
-    (block,) = report[technique.name].values()
+    assert len(report[technique.name]) == 1
     assert report["stages"][technique.name]["runs"] == 1
     assert report["validation"]["gltf"]["errors"] == 0 and report["validation"]["usd"]["errors"] == 0
     for other in NAMES:
         assert other == technique.name or not report[other]
-    per_vertex = technique.bytes_per_vertex(block)
-    assert math.isfinite(per_vertex) and per_vertex >= 0
+    # bytes per vertex as the files hold them (`footprint`): the same in both formats, and all of it
+    # counted: lpv's grid and screen's tables too, not only attributes
+    used = footprint(inspect_glb(glb))["techniques"][technique.name]
+    assert used == footprint(inspect_usdc(usdc))["techniques"][technique.name]
+    assert used["total"] == pytest.approx(used["attributes"] + used["tables"]) and used["total"] > 0
 
     from_glb, from_usd = technique.read(glb), technique.read_usd(usdc)
     assert len(from_glb) == len(from_usd) == 1
     assert_same(next(iter(from_glb.values())), next(iter(from_usd.values())))
 
     figures = verify_file(glb, technique.name, size=96, frames=1, out_dir=tmp_path)
-    assert figures["technique"] == technique.name
+    assert figures["technique"] == technique.name and figures["bytes_per_vertex"] == used["total"]
     bad = [(where, v) for where, v in finite_numbers(figures) if not math.isfinite(v)]
     assert bad == []
     assert 0 <= figures["rmse_object"] < 1 and figures["frame_ms_sss"] > 0

@@ -1,5 +1,5 @@
 """A sixth technique from outside the package (tests/toy_technique/: its files, named in
-``SSSBAKE_TECHNIQUES``; built in, it would be one line in `registry.TECHNIQUES`) bakes in the batch's
+``SSSBAKE_TECHNIQUES``; built in, it would be one line in `registry.ENTRIES`) bakes in the batch's
 worker processes, verifies, and gets its own option, flag and report block."""
 
 import json

@@ -25,9 +25,6 @@ class ToyVerify:
         return {str(prim.GetPath()): np.asarray(tables["albedo"]) for prim in stage.Traverse()
                 if (tables := usd.technique_tables(prim, "toy")) is not None}
 
-    def bytes_per_vertex(self, block: dict) -> float:
-        return block["bytes"]["perVertex"]
-
     def verify_items(self, unit: VerifyUnit, data: dict, runtime: dict) -> tuple[dict, dict]:
         albedo = data[(unit.mesh, unit.primitives[0])]
         return ({**unit.base, "q": unit.lambert_q(unit.primitive.normals) * albedo},

@@ -4,6 +4,7 @@ techniques worse than best-fit Lambert marked and counted, as the batch summary 
 Chromium renders it when one is installed."""
 
 import base64
+import copy
 import io
 import json
 import re
@@ -17,6 +18,7 @@ import trimesh
 from PIL import Image
 
 from sssbake.pipeline.cli import main
+from sssbake.pipeline.verify.html_report import PICTURE_SIZE, _pareto_figure, _validation_notice, write_report
 
 
 @pytest.fixture(scope="module")
@@ -47,10 +49,12 @@ def test_the_page_holds_every_asset_its_plan_and_pictures(page):
         with Image.open(io.BytesIO(base64.b64decode(data))) as png:
             assert png.format == "PNG" and png.size[0] > 100
     # figures: RMSE values on [0, 1] for each verified technique
-    rows = re.findall(r"<tr><td>(screen|prt)</td><td>([0-9.]+)</td><td>([0-9.]+)</td><td>([0-9.]+)</td>", text)
+    rows = re.findall(r"<tr><td>(screen|prt)</td><td>([0-9.]+) / ([0-9.]+)</td><td>([0-9.]+)</td><td>([0-9.]+)</td>",
+                      text)
     assert [r[0] for r in rows] == ["screen", "prt"]
-    assert all(0 < float(r[2]) <= float(r[3]) < 1 for r in rows)
-    assert float(rows[0][1]) == 0.0 and float(rows[1][1]) > 0  # screen stores nothing per vertex
+    assert all(0 < float(r[3]) <= float(r[4]) < 1 for r in rows)
+    # bytes per vertex, attributes / with tables (`footprint`): screen's are its material's tables alone
+    assert float(rows[0][1]) == 0.0 < float(rows[0][2]) and 0 < float(rows[1][1]) < float(rows[1][2])
     assert "src=\"http" not in text and "<link" not in text  # self-contained
     # the budget: each row says within or over, and the page counts them
     verdicts = re.findall(r"<td>(within|over) 0.01</td>", text)
@@ -59,9 +63,24 @@ def test_the_page_holds_every_asset_its_plan_and_pictures(page):
     assert "within 48 bytes per vertex" in text  # the planner gave prt the byte budget, and it held
     # the budget check: its attempts and what the whole of it took, per asset
     assert text.count("<h3>Budget check (") == 2 and text.count("with the pilot and the checks") == 2
-    assert float(rows[1][1]) <= 48.0
-    # both beat best-fit Lambert, on the pilot (or they would not ship) and on the full asset
-    assert text.count("<td>better</td>") == 2 and "worse than best-fit Lambert" not in text
+    assert float(rows[1][2]) <= 48.0  # with its tables, over the render vertices (no more than the welded ones')
+    # both beat best-fit Lambert, on the pilot (or they would not ship) and on the full asset: no row
+    # marked, none counted in the summary table (the budget check verified them, not the page: no time)
+    assert text.count("<td>better</td>") == 2 and "<tr class='worse'>" not in text and "technique worse" not in text
+    assert re.search(r"<tr class='total'><th>all</th><td>2 baked, 1 failed</td><td>[0-9.]+</td><td>—</td><td>—</td>"
+                     r"<td>2</td><td>0</td></tr>", text)
+    # each picture a thumbnail whose link enlarges it: the link's target holds that very image, drawn at
+    # PICTURE_SIZE² (reference | technique | Lambert) though the figures are the budget check's at 160²
+    links = re.findall(r"<a href='#([^']+)'><img alt='(screen|prt)' src='data:image/png;base64,([^']+)'>", text)
+    assert [alt for _, alt, _ in links] == ["screen", "prt"]
+    for anchor, _, data in links:
+        assert text.count(f"id='{anchor}'") == 1
+        assert re.search(rf"<div class='pic' id='{anchor}'><a href='#{anchor}'><img alt='\w+' "
+                         rf"src='data:image/png;base64,{re.escape(data)}'>", text)
+        with Image.open(io.BytesIO(base64.b64decode(data))) as png:
+            assert png.size == (3 * PICTURE_SIZE, PICTURE_SIZE)
+    # --no-validate: each baked asset says its glTF was not validated, and why
+    assert text.count("The glTF validator did not run on these outputs: turned off (--no-validate)") == 2
 
 
 def test_techniques_worse_than_best_fit_lambert_are_marked_and_counted(tmp_path, capsys):
@@ -99,10 +118,12 @@ def test_techniques_worse_than_best_fit_lambert_are_marked_and_counted(tmp_path,
     assert f"2 techniques worse than best-fit Lambert (object RMSE on the pilot's subsample): {named}\n" in printed
     # the report: the full asset's figures, the pilot's where the mesh is the pilot's subsample
     text = (out / "report.html").read_text()
-    rows = re.findall(r"<tr><td>(screen|lpv)</td><td>[0-9.]+</td><td>[0-9.]+</td><td>([0-9.]+)</td><td>([0-9.]+)</td>"
-                      r"(<td class='worse'>worse</td>|<td>better</td>)", text)
-    worse = "<td class='worse'>worse</td>"
+    rows = re.findall(r"<tr(?: class='worse')?><td>(screen|lpv)</td><td>[^<]+</td><td>[0-9.]+</td><td>([0-9.]+)</td>"
+                      r"<td>([0-9.]+)</td>(<td class='worse'><strong>worse than Lambert</strong></td>|<td>better</td>)",
+                      text)
+    worse = "<td class='worse'><strong>worse than Lambert</strong></td>"
     assert [(t, mark) for t, _, _, mark in rows] == [("screen", "<td>better</td>"), ("screen", worse), ("lpv", worse)]
+    assert text.count("<tr class='worse'><td>") == 2 and "<strong>2 of 2 techniques worse than best-fit Lambert" in text
     for (t, rmse_object, lambert, _), check in zip(rows, (ball_check, checks["screen"], checks["lpv"])):
         np.testing.assert_allclose([float(rmse_object), float(lambert)],
                                    [check["rmse_object"], check["lambert_rmse_object"]], rtol=2e-3, atol=1e-4)
@@ -114,7 +135,17 @@ def test_techniques_worse_than_best_fit_lambert_are_marked_and_counted(tmp_path,
         assert list(cost["techniques"]) == techniques and cost["seconds"] > 0
         assert cost["seconds"] == pytest.approx(sum(c["seconds"] for c in cost["techniques"].values()), abs=2e-3)
         assert cost["bake_fraction"] == pytest.approx(cost["seconds"] / cost["bake_seconds"], rel=1e-3)
-        assert f"verification {cost['seconds']:.2f} s ({cost['bake_fraction']:.2f} × the bake)" in text
+        assert (f"verification {cost['seconds']:.2f} s ({cost['bake_fraction']:.2f} × the bake)</strong> beside the "
+                f"bake's {cost['bake_seconds']:.2f} s") in text
+        # and in the summary table, beside the bake's seconds and the techniques marked worse
+        marked = "<td class='worse'>2</td>" if name == "block" else "<td>0</td>"
+        assert re.search(rf"<a href='#asset-\d+'>[^<]*{name}\.obj</a></td><td>ok</td>"
+                         rf"<td>{cost['bake_seconds']:.2f}</td><td>{cost['seconds']:.2f}</td>"
+                         rf"<td>{cost['bake_fraction']:.2f} ×</td><td>{len(techniques)}</td>{marked}</tr>", text)
+    costs = [json.loads((out / f"{name}.report.json").read_text())["verification"] for name in ("ball", "block")]
+    spent, baked = sum(c["seconds"] for c in costs), sum(c["bake_seconds"] for c in costs)
+    assert (f"<tr class='total'><th>all</th><td>2 baked, 0 failed</td><td>{baked:.2f}</td><td>{spent:.2f}</td>"
+            f"<td>{spent / baked:.2f} ×</td><td>3</td><td class='worse'>2</td></tr>") in text
     # screen is checked against the dipole reference, every vertex of the 642-vertex ball sampled;
     # lpv against its own (the field at twice the grid), nothing sampled
     ball = json.loads((out / "ball.report.json").read_text())["verification"]["techniques"]["screen"]
@@ -125,6 +156,65 @@ def test_techniques_worse_than_best_fit_lambert_are_marked_and_counted(tmp_path,
     assert "exact sums at 642 of 642 vertices and energy scales of" in text
     block = json.loads((out / "block.report.json").read_text())["verification"]["techniques"]["lpv"]
     assert block["reference_check"] is None
+
+
+def test_the_mark_sits_exactly_on_rows_worse_than_lambert(page, tmp_path):
+    """The fixture's ball under two names, its budget check's figures rewritten so that one is over
+    best-fit Lambert's object RMSE and one under: only the first row is marked, in words, its asset
+    says so, and the summary counts it once."""
+    out = page.parent
+    base = json.loads((out / "ball.report.json").read_text())
+    records = []
+    for stem, rmse_object in (("over", 0.03), ("under", 0.01)):
+        report = copy.deepcopy(base)
+        report["check"]["figures"]["screen"].update(rmse_object=rmse_object, rmse_object_lambert=0.02)
+        (tmp_path / f"{stem}.report.json").write_text(json.dumps(report))
+        records.append({"asset": f"{stem}.obj", "status": "ok",
+                        "outputs": [str(out / "ball.glb"), str(tmp_path / f"{stem}.report.json")]})
+    text = write_report(tmp_path, {"assets": records, "ok": 2, "failed": 0, "seconds": 1.0}, verify=False).read_text()
+    over, under = text.split('id="asset-0"')[1].split('id="asset-1"')
+    assert "<tr class='worse'><td>screen</td>" in over and over.count("worse than Lambert</strong></td>") == 1
+    assert "<strong>1 of 1 technique worse than best-fit Lambert</strong>" in over
+    assert "<tr><td>screen</td>" in under and "<td>better</td>" in under and "worse" not in under
+    assert text.count("<tr class='worse'>") == 1
+    assert "<td class='worse'>1</td></tr><tr><td><a href='#asset-1'>under.obj" in text  # over.obj's summary row
+    assert "<td>0</td></tr><tr class='total'>" in text and text.count("<td>2</td><td class='worse'>1</td></tr>") == 1
+    assert "1 technique worse than best-fit Lambert (object RMSE at 160² on the full asset): over.obj screen " \
+           "0.0300 against 0.0200" in text
+
+
+def test_a_plot_of_one_point_or_of_equal_points_gets_a_real_range():
+    """matplotlib's own limits about a lone point on a symlog axis (45.4 to 50.7 at 48) hold no tick."""
+    import matplotlib.pyplot as plt
+
+    one = {"bytes_per_vertex": 48.0, "frame_ms_sss": 1.2, "frame_ms_plain": 0.8, "rmse_object": 0.02}
+    for points in ([("a prt", one, None)], [("a prt", one, None), ("b prt", dict(one), None)]):
+        fig = _pareto_figure(points)
+        fig.canvas.draw()
+        for ax, x, scale in zip(fig.axes, (48.0, 1.5), ("symlog", "log")):
+            lo, hi = ax.get_xlim()
+            assert ax.get_xscale() == scale and lo < x < hi and hi / lo == pytest.approx(10.0)  # a decade about it
+            assert [t for t in ax.get_xticks() if lo <= t <= hi] == [100.0 if scale == "symlog" else 1.0]
+            assert ax.get_ylim() == pytest.approx((0.018, 0.022))  # a tenth of the RMSE each side
+        plt.close(fig)
+    # screen's 0 bytes alone: no log axis over zero, a linear one about it
+    fig = _pareto_figure([("s screen", {**one, "bytes_per_vertex": 0.0}, None)])
+    assert fig.axes[0].get_xscale() == "linear" and fig.axes[0].get_xlim() == (-1.0, 1.0)
+    plt.close(fig)
+
+
+def test_a_notice_says_where_the_gltf_validator_did_not_run():
+    usd = {"errors": 0, "warnings": 0, "messages": []}
+    assert _validation_notice({"validation": {"gltf": {"errors": 0}, "usd": usd}, "warnings": []}) == ""
+    missing = {"validation": {"usd": usd}, "stages": {"validate": {"seconds": 0.3}},
+               "warnings": ["glTF validation skipped: the npm package gltf-validator was not found"]}
+    assert _validation_notice(missing) == ("<p class='notice'>The glTF validator did not run on these outputs: the npm "
+                                           "package gltf-validator was not found</p>")
+    # as the validate stage records it now: the glTF entry holds only why it was skipped
+    skipped = {"validation": {"gltf": {"skipped": "node (Node.js) is not installed", "validator_missing": True},
+                              "usd": usd}, "warnings": []}
+    assert _validation_notice(skipped) == ("<p class='notice'>The glTF validator did not run on these outputs: node "
+                                           "(Node.js) is not installed</p>")
 
 
 @pytest.mark.skipif(not any(shutil.which(b) for b in ("chromium", "chromium-browser", "google-chrome")),

@@ -1,6 +1,7 @@
 """verify: each technique's export against the offline reference, end to end through the command line."""
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -64,25 +65,57 @@ def test_uncompressed_prt_beats_lambert_against_the_reference(tmp_path, capsys):
     first = verify_file(out / "sphere.glb", size=48, out_dir=tmp_path, frames=1, reference_sum="checked",
                         references=references)
     (held,) = references.values()
-    again = verify_file(out / "sphere.glb", size=48, out_dir=tmp_path, frames=1, reference_sum="checked",
-                        references=references)
+    again = verify_file(out / "sphere.glb", size=48, out_dir=tmp_path / "big", frames=1, reference_sum="checked",
+                        references=references, picture_size=96)
     assert list(references.values()) == [held] and again["rmse_object"] == first["rmse_object"]
+    # larger pictures (the report's) are drawn apart from the figures, which stay those at 48²
+    figures = ("rmse_image", "rmse_object", "rmse_object_lambert", "lambert_scale", "exposure", "image_size")
+    assert {k: again[k] for k in figures} == {k: first[k] for k in figures} and again["picture_size"] == [96, 96]
+    for result, side in ((first, 48), (again, 96)):
+        with Image.open(result["pngs"]["comparison"]) as png:  # reference | prt | Lambert
+            assert png.size == (3 * side, side)
+        with Image.open(result["pngs"]["difference"]) as png:
+            assert png.size == (side, side)
     assert main(["verify", str(out / "sphere.glb"), "--light-pos", "1,2"]) == 1
     assert "--light-pos takes three comma-separated numbers" in capsys.readouterr().err
     assert main(["verify", str(out / "sphere.glb"), "--light-pos", "2,1,1"]) == 1  # inside the ball
     assert "the light reaches no vertex" in capsys.readouterr().err
 
 
-def test_files_without_prt_get_a_clear_error(tmp_path, capsys):
+def _sample_sphere(tmp_path, capsys, techniques: str) -> tuple[Path, Path]:
+    """The samples' folder and the output folder of the sample sphere baked with `techniques`."""
     src = tmp_path / "in"
     generate(src)
     out = tmp_path / "out"
     assert main(["bake", str(src / "sphere.obj"), "-o", str(out), "--config", str(src / "sssbake.toml"),
-                 "--techniques", "none", "-q"]) == 0
+                 "--techniques", techniques, "-q"]) == 0
     capsys.readouterr()
+    return src, out
+
+
+def test_files_without_prt_get_a_clear_error(tmp_path, capsys):
+    src, out = _sample_sphere(tmp_path, capsys, "none")
     assert main(["verify", str(out / "sphere.glb")]) == 1
-    assert "bake with --techniques prt" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert err == (f"error: {out / 'sphere.glb'}: holds no technique verify checks, only the standard fallback "
+                   "(bake with --techniques and one of prt, kernels, spectral, screen, lpv)\n")
+    # the file named once, however the path was written
+    relative = os.path.relpath(out / "sphere.glb")
+    assert main(["verify", f"./{relative}", "--technique", "prt"]) == 1
+    err = capsys.readouterr().err
+    assert "bake with --techniques prt" in err and err.count("sphere.glb") == 1 and err.count("\n") == 1
     assert main(["verify", str(src / "sphere.obj")]) == 2
+
+
+def test_verify_checks_each_technique_the_file_holds(tmp_path, capsys):
+    """Without --technique, verify checks what the file holds (here spectral and screen, not prt), one
+    result each, against one reference."""
+    _, out = _sample_sphere(tmp_path, capsys, "screen,spectral")
+    assert main(["verify", str(out / "sphere.glb"), "--size", "48", "--frames", "1", "--json"]) == 0
+    results = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [r["technique"] for r in results] == ["spectral", "screen"]
+    assert all(0 <= r["rmse_object"] < 1 for r in results)
+    assert results[0]["bytes_per_vertex"] == 12.0 and results[1]["bytes_per_vertex"] > 0  # screen's tables
 
 
 def test_kernels_export_renders_close_to_the_reference_and_blending_matters(tmp_path, capsys):
@@ -99,9 +132,10 @@ def test_kernels_export_renders_close_to_the_reference_and_blending_matters(tmp_
         assert main(["verify", str(out / "sphere.glb"), "--technique", "kernels", "--size", "96", "--frames", "2",
                      "--json"]) == 0
         results[blend] = json.loads(capsys.readouterr().out)
-        report = json.loads((out / "sphere.report.json").read_text())
-        (mesh_report,) = report["kernels"].values()
-        assert results[blend]["bytes_per_vertex"] == mesh_report["bytes"]["perVertex"] > 0
+        # one definition of bytes per vertex: verify's is inspect's, attributes and tables
+        assert main(["inspect", str(out / "sphere.glb"), "--json"]) == 0
+        used = json.loads(capsys.readouterr().out)["footprint"]["techniques"]["kernels"]
+        assert results[blend]["bytes_per_vertex"] == used["total"] > used["attributes"] == 12.0
     result = results["optimised"]
     assert KEYS <= set(result) and result["technique"] == "kernels"
     assert result["rmse_object"] < min(0.02, result["rmse_object_lambert"])
@@ -191,7 +225,10 @@ def test_screen_export_renders_close_to_the_reference_and_reports_what_it_misses
     front = json.loads(capsys.readouterr().out)
     assert SCREEN_KEYS <= set(front) and front["technique"] == "screen"
     (report,) = json.loads((out / "ball.report.json").read_text())["screen"].values()
-    assert front["bytes_per_vertex"] == 0.0 and front["bytes_per_material"] == report["bytes"]["total"]
+    # screen's bytes are its material's tables alone, spread over the ball's render vertices
+    vertices = _render_vertices(out / "ball.glb")
+    assert front["bytes_per_material"] == report["bytes"]["total"] > 0
+    assert front["bytes_per_vertex"] == pytest.approx(report["bytes"]["total"] / vertices)
     # per pixel from the camera's view: close to the exact sum where the light faces the camera
     # (measured 0.0074 against the best-fit Lambert's 0.0125)
     assert front["rmse_object"] < 0.75 * front["rmse_object_lambert"]
@@ -205,6 +242,11 @@ def test_screen_export_renders_close_to_the_reference_and_reports_what_it_misses
                  "--light-dir", "0.3,-0.4,-1", "--json"]) == 0
     back = json.loads(capsys.readouterr().out)
     assert back["missed_share"] > 0.99 and back["missed_share_unlit"] > 0.99
+
+
+def _render_vertices(glb: Path) -> int:
+    gltf = pygltflib.GLTF2().load(str(glb))
+    return sum(gltf.accessors[p.attributes.POSITION].count for m in gltf.meshes for p in m.primitives)
 
 
 LPV_KEYS = KEYS | {"excess_share", "excess_share_unlit", "thin_cells", "lpv_steps", "bytes_per_mesh"}
@@ -227,7 +269,10 @@ def test_lpv_export_renders_close_to_the_reference_on_a_fine_grid_and_warns_on_a
         figures[resolution] = json.loads(capsys.readouterr().out)
     fine = figures[32]
     assert LPV_KEYS <= set(fine) and fine["technique"] == "lpv" and fine["lpv_steps"] == 12
-    assert fine["bytes_per_vertex"] == 0.0 and fine["bytes_per_mesh"] > 0 and 0 < fine["thin_cells"] < 0.5
+    # lpv's bytes are its mesh's grid alone, spread over the ball's render vertices
+    vertices = _render_vertices(tmp_path / "out32" / "ball.glb")
+    assert fine["bytes_per_mesh"] > 0 and fine["bytes_per_vertex"] == pytest.approx(fine["bytes_per_mesh"] / vertices)
+    assert 0 < fine["thin_cells"] < 0.5
     # measured 0.049 against 0.35 on the coarse grid (the paper's rendering, calibrated on a slab)
     assert fine["rmse_object"] < 0.08 and figures[12]["rmse_object"] > 3 * fine["rmse_object"]
     assert fine["excess_share"] < 0.1 < figures[12]["excess_share"]

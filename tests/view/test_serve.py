@@ -16,9 +16,7 @@ import pytest
 
 from sssbake.pipeline.cli import main
 from sssbake.pipeline.core.errors import AssetError
-from sssbake.pipeline.view.serve import PAGE, ViewError, ViewServer, check_glb, served_folders
-
-REPO = Path(__file__).resolve().parents[2]
+from sssbake.pipeline.view.serve import PAGE, THREE, ViewError, ViewServer, check_glb, served_folders
 
 
 def _glb(path, gltf: dict, bin_chunk: bytes = b""):
@@ -152,13 +150,12 @@ def test_cli_errors_are_one_line(tmp_path, capsys, monkeypatch):
         assert e.value.code == 2
 
 
-def test_missing_three_and_taken_port(tmp_path, served):
-    with pytest.raises(ViewError, match="run `npm ci` in the sssbake checkout"):
-        served_folders([tmp_path])
-    (tmp_path / "node_modules" / "three" / "build").mkdir(parents=True)
-    (tmp_path / "node_modules" / "three" / "build" / "three.module.js").write_text("")
-    with pytest.raises(ViewError, match="runtime_three/sssbake-three.js"):
-        served_folders([tmp_path])
+def test_served_folders_are_the_package_s_and_a_taken_port(served):
+    # three.js is the package's vendored copy: never a checkout's node_modules, which `npm ci` rewrites
+    folders = served_folders()
+    assert folders["three/build/"] == THREE / "build" and (THREE / "build" / "three.module.js").is_file()
+    assert "node_modules" not in str(folders["three/examples/jsm/"])
+    assert (folders["runtime_three/"] / "sssbake-three.js").is_file()
     server, glb, folders = served
     port = int(server.url.rsplit(":", 1)[1].strip("/"))
     with pytest.raises(ViewError, match=f"cannot listen on 127.0.0.1:{port}"):
@@ -203,7 +200,7 @@ def test_the_command_serves_until_ctrl_c(tmp_path):
             assert response.read() == glb.read_bytes()
             assert response.headers["Content-Disposition"] == "inline; filename*=UTF-8''x.glb"
         with urllib.request.urlopen(url + "three/build/three.core.js", timeout=10) as response:
-            assert response.read() == (REPO / "node_modules" / "three" / "build" / "three.core.js").read_bytes()
+            assert response.read() == (THREE / "build" / "three.core.js").read_bytes()
         _ctrl_c(proc)
 
 

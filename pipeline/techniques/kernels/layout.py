@@ -18,6 +18,7 @@ import numpy as np
 
 from sssbake.pipeline.mesh.baked import ATTRIBUTE_WIDTH, VertexAttribute, index_table, welded_vertex_attribute
 from sssbake.pipeline.techniques.kernels.data import KernelsData, KernelsDataError
+from sssbake.pipeline.techniques.kernels.options import KERNEL_BITS
 
 VERTEX_KEY = "sss:kernels:vertex"
 VERTEX_ATTRIBUTE = VertexAttribute(VERTEX_KEY, np.zeros(0)).gltf_name
@@ -35,10 +36,6 @@ BLOCKS = {
 
 #: Texels encoded at a time: bounds the float64 temporaries of `encode_kernels`.
 _ENCODE_CHUNK = 1 << 15
-
-
-#: Bits per stored kernel weight that the layout offers.
-KERNEL_BITS = (8, 16)
 
 
 def _code_dtype(bits: int) -> type:

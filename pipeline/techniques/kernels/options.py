@@ -1,15 +1,17 @@
-"""kernels: its bake options (`BakeOptions`' ``kernels_*`` fields, TOML keys and ``--kernels-*`` flags)."""
+"""kernels: its bake options (`BakeOptions`' ``kernels_*`` fields, TOML keys and ``--kernels-*`` flags) and
+the precompute's, with their choices: no numpy here, so that ``sssbake bake --help`` imports none."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from sssbake.pipeline.core.ranges import Range
-from sssbake.pipeline.techniques.kernels.layout import KERNEL_BITS
-from sssbake.pipeline.techniques.kernels.precompute import BLENDS, KERNELS_DEFAULTS, SEAMS, KernelsPrecomputeOptions
 from sssbake.pipeline.techniques.option import option
 
-_D = KERNELS_DEFAULTS
+BLENDS = ("optimised", "fixed", "none")
+SEAMS = ("unfold", "none")
+#: Bits per stored kernel weight that the layout offers (`layout.encode_kernels`).
+KERNEL_BITS = (8, 16)
 #: F's budget per vertex: the entries it allows are an integer count (1e308 made it inf, then NaN),
 #: and a gigabyte a vertex already keeps every entry F has (one per pair of vertices at most).
 F_BYTES = Range(0.0, 1e9, "F's entry count must stay an integer; a gigabyte a vertex keeps all of F",
@@ -17,11 +19,60 @@ F_BYTES = Range(0.0, 1e9, "F's entry count must stay an integer; a gigabyte a ve
 
 
 @dataclass(frozen=True)
+class KernelsPrecomputeOptions:
+    """Attributes
+    ----------
+    kernel_size : int
+        k of the k × k local kernels (odd, 3..15); the atlas gutter should be >= (k + 1) / 2.
+    threshold : float
+        F entries whose largest channel is below it are dropped (Lensch et al.: 1e-5).
+    blend : str
+        ``"optimised"``, ``"fixed"`` or ``"none"`` (`precompute`'s module docstring).
+    seams : str
+        ``"unfold"`` (border texels across seams) or ``"none"`` (kernels stop at chart edges).
+    ridge : float
+        Weight of the pull towards w0 in the blending fit, per ring texel.
+    global_vertices : int
+        Surfaces with more vertices get their global response (F, the distribution and the
+        blending) on a copy simplified to about this many vertices; 0: only when `f_bytes` asks.
+    f_bytes : float
+        Largest size of F (fIndptr, fIndices, fValues as stored) per welded surface vertex, in
+        bytes (`global_budget`); 0: unbounded (F as thresholded, on at most `global_vertices`).
+    """
+
+    kernel_size: int = 7
+    threshold: float = 1e-5
+    blend: str = "optimised"
+    seams: str = "unfold"
+    ridge: float = 0.005
+    global_vertices: int = 20_000
+    f_bytes: float = 64.0
+
+    def check(self) -> None:
+        if not (isinstance(self.kernel_size, int) and 3 <= self.kernel_size <= 15 and self.kernel_size % 2):
+            raise ValueError(f"kernels: kernel_size must be odd in 3..15, got {self.kernel_size!r}")
+        if not (isinstance(self.threshold, (int, float)) and 0 < self.threshold < 1):
+            raise ValueError(f"kernels: threshold must be in (0, 1), got {self.threshold!r}")
+        if self.blend not in BLENDS or self.seams not in SEAMS:
+            raise ValueError(f"kernels: blend must be one of {list(BLENDS)} and seams one of {list(SEAMS)}, "
+                             f"got {self.blend!r}, {self.seams!r}")
+        if not (isinstance(self.global_vertices, int) and (self.global_vertices == 0 or self.global_vertices >= 100)):
+            raise ValueError(f"kernels: global_vertices must be 0 or at least 100, got {self.global_vertices!r}")
+        if not (isinstance(self.f_bytes, (int, float)) and (self.f_bytes == 0 or self.f_bytes >= 16)):
+            raise ValueError(f"kernels: f_bytes must be 0 (unbounded) or at least 16, got {self.f_bytes!r}")
+        if not (0 < self.ridge < 1):
+            raise ValueError(f"kernels: ridge must be in (0, 1), got {self.ridge!r}")
+
+
+KERNELS_DEFAULTS = KernelsPrecomputeOptions()
+_D = KERNELS_DEFAULTS
+
+@dataclass(frozen=True)
 class KernelsOptions:
     """Attributes
     ----------
     size, threshold, blend, seams, global_vertices, f_bytes
-        The precompute (`precompute.KernelsPrecomputeOptions`; `size` is its ``kernel_size``).
+        The precompute (`KernelsPrecomputeOptions`; `size` is its ``kernel_size``).
     bits : int
         Bits per stored kernel weight (8 or 16).
     """

@@ -60,10 +60,9 @@ from sssbake.pipeline.techniques.kernels.border import border_texels
 from sssbake.pipeline.techniques.kernels.compiled import (grouped_products, local_transport, mix_global, near_table,
                                                             shared_hats)
 from sssbake.pipeline.techniques.kernels.data import KernelsData
+from sssbake.pipeline.techniques.kernels.options import KERNELS_DEFAULTS, KernelsPrecomputeOptions
 from sssbake.pipeline.techniques.kernels.throughput import Throughput, throughput_matrix
 
-BLENDS = ("optimised", "fixed", "none")
-SEAMS = ("unfold", "none")
 #: A vertex whose dual weights sum further than this from 1 gets normalised barycentric weights.
 DUAL_TOLERANCE = 0.2
 #: The energy constraint of the blending fit applies where the corners' hats put at least this
@@ -89,55 +88,6 @@ GL_TEXTURE_LIMIT = 16384
 #: Texels per chunk of the fit and kernel passes (bounds the pair arrays to ~100 MB).
 CHUNK = 4096
 THREADS = 2
-
-
-@dataclass(frozen=True)
-class KernelsPrecomputeOptions:
-    """Attributes
-    ----------
-    kernel_size : int
-        k of the k × k local kernels (odd, 3..15); the atlas gutter should be >= (k + 1) / 2.
-    threshold : float
-        F entries whose largest channel is below it are dropped (Lensch et al.: 1e-5).
-    blend : str
-        ``"optimised"``, ``"fixed"`` or ``"none"`` (module docstring).
-    seams : str
-        ``"unfold"`` (border texels across seams) or ``"none"`` (kernels stop at chart edges).
-    ridge : float
-        Weight of the pull towards w0 in the blending fit, per ring texel.
-    global_vertices : int
-        Surfaces with more vertices get their global response (F, the distribution and the
-        blending) on a copy simplified to about this many vertices; 0: only when `f_bytes` asks.
-    f_bytes : float
-        Largest size of F (fIndptr, fIndices, fValues as stored) per welded surface vertex, in
-        bytes (`global_budget`); 0: unbounded (F as thresholded, on at most `global_vertices`).
-    """
-
-    kernel_size: int = 7
-    threshold: float = 1e-5
-    blend: str = "optimised"
-    seams: str = "unfold"
-    ridge: float = 0.005
-    global_vertices: int = 20_000
-    f_bytes: float = 64.0
-
-    def check(self) -> None:
-        if not (isinstance(self.kernel_size, int) and 3 <= self.kernel_size <= 15 and self.kernel_size % 2):
-            raise ValueError(f"kernels: kernel_size must be odd in 3..15, got {self.kernel_size!r}")
-        if not (isinstance(self.threshold, (int, float)) and 0 < self.threshold < 1):
-            raise ValueError(f"kernels: threshold must be in (0, 1), got {self.threshold!r}")
-        if self.blend not in BLENDS or self.seams not in SEAMS:
-            raise ValueError(f"kernels: blend must be one of {list(BLENDS)} and seams one of {list(SEAMS)}, "
-                             f"got {self.blend!r}, {self.seams!r}")
-        if not (isinstance(self.global_vertices, int) and (self.global_vertices == 0 or self.global_vertices >= 100)):
-            raise ValueError(f"kernels: global_vertices must be 0 or at least 100, got {self.global_vertices!r}")
-        if not (isinstance(self.f_bytes, (int, float)) and (self.f_bytes == 0 or self.f_bytes >= 16)):
-            raise ValueError(f"kernels: f_bytes must be 0 (unbounded) or at least 16, got {self.f_bytes!r}")
-        if not (0 < self.ridge < 1):
-            raise ValueError(f"kernels: ridge must be in (0, 1), got {self.ridge!r}")
-
-
-KERNELS_DEFAULTS = KernelsPrecomputeOptions()
 
 
 def f_entry_bytes(vertex_count: int) -> int:

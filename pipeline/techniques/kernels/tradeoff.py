@@ -24,12 +24,11 @@ from pathlib import Path
 import numpy as np
 
 from sssbake.pipeline.core.materials import Material
-from sssbake.pipeline.mesh.atlas import RESOLUTION, compute_atlas
+from sssbake.pipeline.mesh.atlas import compute_atlas
 from sssbake.pipeline.mesh.clean import clean_scene
 from sssbake.pipeline.mesh.load import load_scene
 from sssbake.pipeline.render.items import merged_primitive
 from sssbake.pipeline.render.sweep import (
-    add_sweep_argument,
     image_exposure,
     lit_images,
     per_vertex_size,
@@ -39,21 +38,12 @@ from sssbake.pipeline.render.sweep import (
     tradeoff_result,
     worst_rmse,
 )
+from sssbake.pipeline.techniques.kernels.entry import DEFAULT_RESOLUTION, RESOLUTIONS, SIZES, THRESHOLDS
 from sssbake.pipeline.techniques.kernels.layout import kernels_bytes
 from sssbake.pipeline.techniques.kernels.options import KernelsOptions
-from sssbake.pipeline.techniques.kernels.precompute import (
-    BLENDS,
-    KERNELS_DEFAULTS,
-    SEAMS,
-    KernelsPrecomputeOptions,
-    precompute_kernels,
-)
+from sssbake.pipeline.techniques.kernels.options import BLENDS, KERNELS_DEFAULTS, SEAMS, KernelsPrecomputeOptions
+from sssbake.pipeline.techniques.kernels.precompute import precompute_kernels
 
-RESOLUTIONS = (256, 512, 1024)
-SIZES = (5, 7, 9)
-THRESHOLDS = (1e-4, 1e-5, 1e-6)
-#: Atlas resolution of the default configuration: the bake's.
-DEFAULT_RESOLUTION = RESOLUTION
 #: The swept knobs, in sweep order (each a row key).
 KNOBS = ("atlas_resolution", "kernel_size", "threshold", "blend", "seams")
 
@@ -188,14 +178,6 @@ def _plot(rows: list[dict], path: str) -> None:
 
 class KernelsTradeoff:
     """``sssbake tradeoff --technique kernels`` (`technique.Technique`'s tradeoff hooks)."""
-
-    def add_tradeoff_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--atlas-resolution", type=int, default=DEFAULT_RESOLUTION,
-                            help="kernels: atlas resolution of the default configuration "
-                                 f"(default {DEFAULT_RESOLUTION})")
-        add_sweep_argument(parser, "--resolutions", int, RESOLUTIONS, "kernels: atlas resolutions swept")
-        add_sweep_argument(parser, "--sizes", int, SIZES, "kernels: kernel sizes swept")
-        add_sweep_argument(parser, "--thresholds", float, THRESHOLDS, "kernels: F thresholds swept")
 
     def run_tradeoff(self, path: Path, mm_per_unit: float, material: Material, out_dir: str | os.PathLike,
                      args: argparse.Namespace) -> dict:

@@ -21,9 +21,6 @@ class KernelsVerify:
     def read_usd(self, path) -> dict:
         return read_kernels_usd(path)
 
-    def bytes_per_vertex(self, block: dict) -> float:
-        return block["bytes"]["perVertex"]
-
     def verify_items(self, unit: VerifyUnit, data: dict, runtime: dict) -> tuple[dict, dict]:
         item = {**unit.base, "kernels": data[(unit.mesh, unit.primitives[0])][0], "uvs": unit.primitive.uvs[-1],
                 "vertex_ids": np.concatenate([data[(unit.mesh, p)][1] for p in unit.primitives])}

@@ -49,15 +49,14 @@ Timings and the enclosed volume's error: benchmarks/README.md#lpv-voxelisation.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
-from sssbake.pipeline.core.errors import SssbakeError
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.mesh.winding import edge_defects, inside, winding_numbers
 from sssbake.pipeline.techniques.lpv.data import LpvGrid
+from sssbake.pipeline.techniques.lpv.options import LPV_GRID_DEFAULTS, LpvGridError, LpvGridOptions
 
 #: Cell boxes are shrunk by this share of a cell for the touch test: a surface lying on a cell face
 #: (a box aligned with the grid) does not mark the empty cell beyond it.
@@ -70,38 +69,8 @@ NEIGHBOUR_AXES = np.array([(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1)
 CHUNK = 1 << 22
 
 
-class LpvGridError(SssbakeError, ValueError):
-    """A surface, field or options the lpv voxelisation cannot work with."""
-
-
 MaterialField = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 """Object-space points (p, 3) float64, file units -> (σ'_s (p, 3), σ_a (p, 3)) in 1/mm."""
-
-
-@dataclass(frozen=True)
-class LpvGridOptions:
-    """Attributes
-    ----------
-    resolution : int
-        Cells along the longest side of the object's bounding box.
-    padding : int
-        Empty cells added around the object on every side, so light leaving it has a cell to go to.
-    supersample : int
-        Occupancy is the share of ``supersample³`` points per cell that are inside.
-    """
-
-    resolution: int = 32
-    padding: int = 1
-    supersample: int = 4
-
-    def check(self) -> None:
-        for name, lo, hi in (("resolution", 2, 512), ("padding", 0, 8), ("supersample", 1, 8)):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and lo <= value <= hi):
-                raise LpvGridError(f"lpv grid: {name} must be a whole number in [{lo}, {hi}], got {value!r}")
-
-
-LPV_GRID_DEFAULTS = LpvGridOptions()
 
 
 def homogeneous(material: Material) -> MaterialField:

@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
 from sssbake.pipeline.core.materials import Material, preset
+from sssbake.pipeline.techniques.lpv.options import MARBLE_DEFAULTS, MarbleOptions
 
 #: Default vein material: the base's absorption times this, its scattering unchanged.
 VEIN_ABSORPTION = 10.0
@@ -37,53 +37,6 @@ VEIN_ABSORPTION = 10.0
 NOISE_GRADIENT_BOUND = math.sqrt(3.0) * (1.0 + 2.0 * 15.0 / 8.0 * math.sqrt(3.0))
 #: Size of the noise's permutation and gradient tables (a power of two): its period, in vein periods.
 TABLE = 256
-
-
-@dataclass(frozen=True)
-class MarbleOptions:
-    """Attributes
-    ----------
-    vein_mm : float
-        Spacing of the veins along `axis`, mm.
-    turbulence : float
-        How far the noise bends the veins, in vein periods per unit of fBm (0: flat veins).
-    octaves : int
-        Octaves of the fBm.
-    sharpness : float
-        Exponent of the vein profile (>= 1); larger: thinner veins.
-    axis : (3,) float
-        Direction across the veins (normalised on use), object space.
-    seed : int
-    base : str or Material
-        The marble's body (a preset name or a Material).
-    vein_material : str, Material or None
-        The veins' material; None: the base with `VEIN_ABSORPTION` × its absorption.
-    """
-
-    vein_mm: float = 20.0
-    turbulence: float = 1.0
-    octaves: int = 5
-    sharpness: float = 8.0
-    axis: tuple[float, float, float] = (1.0, 0.4, 0.2)
-    seed: int = 0
-    base: str | Material = "marble"
-    vein_material: str | Material | None = None
-
-    def check(self) -> None:
-        if not (isinstance(self.vein_mm, (int, float)) and math.isfinite(self.vein_mm) and self.vein_mm > 0):
-            raise ValueError(f"marble: vein_mm must be a positive number, got {self.vein_mm!r}")
-        if not (isinstance(self.turbulence, (int, float)) and 0 <= self.turbulence <= 100):
-            raise ValueError(f"marble: turbulence must be in [0, 100], got {self.turbulence!r}")
-        if not (isinstance(self.octaves, int) and 1 <= self.octaves <= 12):
-            raise ValueError(f"marble: octaves must be a whole number in [1, 12], got {self.octaves!r}")
-        if not (isinstance(self.sharpness, (int, float)) and 1 <= self.sharpness <= 1000):
-            raise ValueError(f"marble: sharpness must be in [1, 1000], got {self.sharpness!r}")
-        axis = np.asarray(self.axis, dtype=np.float64)
-        if axis.shape != (3,) or not np.all(np.isfinite(axis)) or not np.linalg.norm(axis) > 0:
-            raise ValueError(f"marble: axis must be three finite numbers, not all 0, got {self.axis!r}")
-
-
-MARBLE_DEFAULTS = MarbleOptions()
 
 
 def materials(options: MarbleOptions = MARBLE_DEFAULTS) -> tuple[Material, Material]:

@@ -27,13 +27,11 @@ import numpy as np
 
 from sssbake.pipeline.techniques.lpv.data import LpvGrid
 from sssbake.pipeline.techniques.lpv.matrices import DIRECTIONS, propagation_matrices
+from sssbake.pipeline.techniques.lpv.options import MAX_STEPS
 
 #: √(1/4π) and ½ √(3/4π): the rendering's weights of c00 and c10^(n).
 RENDER_WEIGHTS = (np.sqrt(1.0 / (4.0 * np.pi)), 0.5 * np.sqrt(3.0 / (4.0 * np.pi)))
 
-
-#: Most propagation steps a frame may take.
-MAX_STEPS = 1024
 
 #: σ_tr Δx at which a step's attenuation stops falling, as in runtime_shaders/lpv_grid.glsl (where
 #: cosh must stay within float32): 3 / (2 + cosh 80) ≈ 1.1e-34 leaves no light after a step

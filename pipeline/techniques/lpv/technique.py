@@ -1,8 +1,9 @@
-"""The lpv technique's registry object (`technique.Technique`), one mixin per concern."""
+"""The lpv technique's registry object (`technique.Technique`), one mixin per concern
+and its entry (``entry.py``: its name, options and tradeoff flags)."""
 
 from __future__ import annotations
 
-from sssbake.pipeline.techniques.lpv.options import LpvOptions
+from sssbake.pipeline.techniques.lpv.entry import LpvEntry
 from sssbake.pipeline.techniques.lpv.pilot import LpvPilot
 from sssbake.pipeline.techniques.lpv.stage import LpvStage
 from sssbake.pipeline.techniques.lpv.tradeoff import LpvTradeoff
@@ -10,10 +11,8 @@ from sssbake.pipeline.techniques.lpv.verify import LpvVerify
 from sssbake.pipeline.techniques.technique import MESH, Technique
 
 
-class Lpv(LpvStage, LpvVerify, LpvPilot, LpvTradeoff, Technique):
-    name = "lpv"
+class Lpv(LpvStage, LpvVerify, LpvPilot, LpvTradeoff, LpvEntry, Technique):
     scope = MESH
     stage_version = 2
     needs_atlas = False
-    options_type = LpvOptions
     draw_unit = "mesh"

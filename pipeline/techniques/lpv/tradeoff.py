@@ -25,7 +25,6 @@ from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.mesh.clean import clean_scene
 from sssbake.pipeline.mesh.load import load_scene
 from sssbake.pipeline.render.sweep import (
-    add_sweep_argument,
     image_exposure,
     lit_images,
     random_lights,
@@ -35,6 +34,7 @@ from sssbake.pipeline.render.sweep import (
     worst_rmse,
 )
 from sssbake.pipeline.techniques.lpv.calibrate import render_scales
+from sssbake.pipeline.techniques.lpv.entry import RESOLUTIONS, STEPS
 from sssbake.pipeline.techniques.lpv.grid import LPV_GRID_DEFAULTS, LpvGridOptions, homogeneous, voxelise
 from sssbake.pipeline.techniques.lpv.layout import lpv_bytes, lpv_tables
 from sssbake.pipeline.techniques.lpv.marble_field import MARBLE_DEFAULTS, MarbleOptions, marble_field
@@ -42,8 +42,6 @@ from sssbake.pipeline.techniques.lpv.matrices import propagation_matrices
 from sssbake.pipeline.techniques.lpv.options import FIELDS
 from sssbake.pipeline.techniques.lpv.propagate import LPV_DEFAULTS
 
-RESOLUTIONS = (16, 32, 64)
-STEPS = (8, 16, 32)
 
 
 def lpv_tradeoff(path: str | os.PathLike, mm_per_unit: float, material: Material, out_dir: str | os.PathLike,
@@ -161,12 +159,6 @@ def _plot(rows: list[dict], path: str) -> None:
 
 class LpvTradeoff:
     """``sssbake tradeoff --technique lpv`` (`technique.Technique`'s tradeoff hooks)."""
-
-    def add_tradeoff_arguments(self, parser: argparse.ArgumentParser) -> None:
-        add_sweep_argument(parser, "--lpv-resolutions", int, RESOLUTIONS, "lpv: grid resolutions swept")
-        add_sweep_argument(parser, "--lpv-steps", int, STEPS, "lpv: propagation steps swept")
-        parser.add_argument("--lpv-field", choices=FIELDS, default="homogeneous",
-                            help="lpv: the medium; marble veins are compared with the finest configuration")
 
     def run_tradeoff(self, path: Path, mm_per_unit: float, material: Material, out_dir: str | os.PathLike,
                      args: argparse.Namespace) -> dict:

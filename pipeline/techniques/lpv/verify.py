@@ -46,10 +46,6 @@ class LpvVerify:
     def read_usd(self, path) -> dict:
         return read_lpv_usd(path)
 
-    def bytes_per_vertex(self, block: dict) -> float:
-        """Nothing per vertex: the grid is per mesh."""
-        return 0.0
-
     def verify_items(self, unit: VerifyUnit, data: dict, runtime: dict) -> tuple[dict, dict]:
         grid, matrices, scales = data[(unit.mesh, unit.primitives[0])]
         item = {**unit.base, "lpv": grid, "lpv_matrices": matrices, "lpv_scales": scales,

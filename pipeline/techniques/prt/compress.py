@@ -5,7 +5,6 @@ the options on real q."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from math import isqrt
 
 import numpy as np
@@ -25,6 +24,14 @@ from sssbake.pipeline.techniques.prt.decode import (
     weight_code_max,
 )
 from sssbake.pipeline.techniques.prt.lloyd import lloyd_quantizer
+from sssbake.pipeline.techniques.prt.options import (
+    MODES,
+    PRT_COMPRESS_DEFAULTS,
+    TABLES,
+    WEIGHT_BITS,
+    WEIGHTS,
+    PrtCompressOptions,
+)
 from sssbake.pipeline.techniques.prt.reference_points import (
     best_fit_triangles,
     least_squares_weights,
@@ -32,16 +39,13 @@ from sssbake.pipeline.techniques.prt.reference_points import (
     refine_reference_points,
 )
 
-# The decoder lives in `prt_decode`; its entry points are re-exported for existing callers.
+# The decoder lives in `prt_decode` and the options in `options`; their names are re-exported for
+# existing callers.
 __all__ = ["MODES", "WEIGHTS", "TABLES", "WEIGHT_BITS", "PRT_COMPRESS_DEFAULTS", "PrtCompressOptions",
            "check_compress_options", "compress_prt", "budget_reference_count", "rgb_tables", "shared_tables",
            "detail_tables",
            "int8_scales", "encode_int8", "decode_at_directions", "evaluate", "bytes_per_vertex"]
 
-MODES = ("refs+sh", "sh", "lloyd")
-WEIGHTS = ("barycentric", "least_squares", "best_fit")
-TABLES = ("auto", "shared", "rgb")
-WEIGHT_BITS = (8, 16)
 #: Reference triangles an 8-bit-weight vertex can address (16 bits of its attribute).
 COMPACT_TRIANGLES = 65536
 #: Levels of the reference tables' lookup table (`PrtData.lut` is (3, 256), codes uint8).
@@ -57,81 +61,6 @@ TABLES_SAMPLE = 512
 #: Candidate int8 ranges per Δq coefficient for ``dq_percentile=None``: the largest |coefficient|
 #: times 2^(-i/4), i = 0..24 (down to 1/64 of it).
 _SCALE_STEPS = 2.0 ** (-np.arange(25) / 4.0)
-
-
-@dataclass(frozen=True)
-class PrtCompressOptions:
-    """Attributes
-    ----------
-    mode : str
-        ``"refs+sh"`` (the paper's scheme), ``"sh"`` (SH of q alone, no reference points) or
-        ``"lloyd"`` (every vertex its own reference point: the uncompressed 8-bit baseline).
-    reference_fraction : float
-        Reference points as a fraction of the vertices (``refs+sh``), in (0, 1]. The default keeps
-        the marble bunny (35k vertices) and dragon (50k) within 20 B/vertex (`bytes_per_vertex`);
-        smaller meshes pay more per vertex for the fixed direction tables (~1.3 B at 35k).
-    sh_order : int
-        SH order n of Δq (n² coefficients per channel, 0 for none; ``sh`` needs at least 1).
-    weights : str
-        ``"barycentric"`` (the paper), ``"least_squares"`` (fitted to q on the vertex's geometric
-        triangle, channels sharing them) or ``"best_fit"`` (least squares on whichever triangle
-        sharing a corner with the geometric one fits best; see `best_fit_triangles`).
-    dq_percentile : float or None
-        Int8 range of each Δq coefficient: this percentile of its |values| (100: the largest,
-        nothing clips), or None for the range with the least squared coding error per channel
-        and coefficient (`int8_scales`).
-    reference_count : int or None
-        Reference points wanted; overrides `reference_fraction` when given.
-    reference_floor : int
-        At least this many reference points from `reference_fraction` (every vertex on meshes
-        that have fewer): a small mesh pays ~10 KB of direction tables anyway, and at 6.5 % its
-        few points lose to plain Lambert (benchmarks/README.md#prt-compression).
-    byte_budget : float or None
-        Bytes per vertex to spend (``refs+sh``; `bytes_per_vertex` total): the reference count
-        becomes the most that fits (`budget_reference_count`), overriding `reference_fraction`
-        and `reference_count`. For small meshes, whose fixed tables cost more per vertex.
-    sh_method : str
-        ``"lsq"`` or ``"quadrature"`` projection of Δq (see `sh.sh_fit_matrix`).
-    tables : str
-        Reference tables (``refs+sh``): ``"rgb"`` (the paper: K codes per channel), ``"shared"``
-        (K codes per reference point for all channels, a level per channel for each code, times
-        the point's RGB colour; see `shared_tables`) or ``"auto"``: shared unless the channels'
-        directional shapes differ more than one shape can follow (`resolve_tables`) and RGB tables
-        fit `byte_budget`. ``lloyd`` always stores RGB.
-    detail_order : int
-        With shared tables, SH order of each reference point's detail term (`detail_tables`;
-        order² int8 coefficients and an int8 RGB colour per point, 0 for none). One shape per
-        point cannot follow the channels' different shadow edges (red diffuses farther), which on
-        dense smooth meshes is most of the error: there order 4 lowers it at the same bytes. On
-        meshes whose error is the interpolation between points it gains nothing and doubles the
-        vertex shader's time, hence off by default: turn it on for dense meshes
-        (benchmarks/README.md#prt-compression).
-    refine : float
-        Share of the reference points (``refs+sh``) added where the fit is worst
-        (`refine_reference_points`) after simplification placed the rest, in [0, 1).
-    weight_bits : int
-        8 or 16 bits per weight code; 16 is used above 65536 reference triangles. The choice
-        was made when 8-bit weights shared a 4-byte attribute with the triangle; the file now
-        stores both as float32 at the same bytes (`prt_layout`), so 8 only rounds coarser
-        (benchmarks/README.md#prt-compression, #vertex-attribute-encodings).
-    """
-
-    mode: str = "refs+sh"
-    reference_fraction: float = 0.065
-    sh_order: int = 0
-    weights: str = "best_fit"
-    dq_percentile: float | None = None
-    reference_count: int | None = None
-    byte_budget: float | None = None
-    sh_method: str = "lsq"
-    tables: str = "auto"
-    refine: float = 0.6
-    weight_bits: int = 8
-    reference_floor: int = 256
-    detail_order: int = 0
-
-
-PRT_COMPRESS_DEFAULTS = PrtCompressOptions()
 
 
 def check_compress_options(o: PrtCompressOptions) -> None:

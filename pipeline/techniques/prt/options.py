@@ -1,21 +1,92 @@
-"""prt: its bake options (`BakeOptions`' ``prt_*`` fields, TOML keys and ``--prt-*`` flags)."""
+"""prt: its bake options (`BakeOptions`' ``prt_*`` fields, TOML keys and ``--prt-*`` flags) and the
+compression's, with their choices: no numpy here, so that ``sssbake bake --help`` imports none."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from sssbake.pipeline.core.scatter_operator import SCATTER_DEFAULTS
-from sssbake.pipeline.core.sh import MAX_ORDER
+from sssbake.pipeline.core.scatter_options import SCATTER_DEFAULTS
 from sssbake.pipeline.techniques.option import option
-from sssbake.pipeline.techniques.prt.compress import (
-    MODES,
-    PRT_COMPRESS_DEFAULTS,
-    TABLES,
-    WEIGHT_BITS,
-    WEIGHTS,
-    PrtCompressOptions,
-)
 
+MODES = ("refs+sh", "sh", "lloyd")
+WEIGHTS = ("barycentric", "least_squares", "best_fit")
+TABLES = ("auto", "shared", "rgb")
+WEIGHT_BITS = (8, 16)
+
+
+@dataclass(frozen=True)
+class PrtCompressOptions:
+    """Attributes
+    ----------
+    mode : str
+        ``"refs+sh"`` (the paper's scheme), ``"sh"`` (SH of q alone, no reference points) or
+        ``"lloyd"`` (every vertex its own reference point: the uncompressed 8-bit baseline).
+    reference_fraction : float
+        Reference points as a fraction of the vertices (``refs+sh``), in (0, 1]. The default keeps
+        the marble bunny (35k vertices) and dragon (50k) within 20 B/vertex (`compress.bytes_per_vertex`);
+        smaller meshes pay more per vertex for the fixed direction tables (~1.3 B at 35k).
+    sh_order : int
+        SH order n of Δq (n² coefficients per channel, 0 for none; ``sh`` needs at least 1).
+    weights : str
+        ``"barycentric"`` (the paper), ``"least_squares"`` (fitted to q on the vertex's geometric
+        triangle, channels sharing them) or ``"best_fit"`` (least squares on whichever triangle
+        sharing a corner with the geometric one fits best; see `compress.best_fit_triangles`).
+    dq_percentile : float or None
+        Int8 range of each Δq coefficient: this percentile of its |values| (100: the largest,
+        nothing clips), or None for the range with the least squared coding error per channel
+        and coefficient (`compress.int8_scales`).
+    reference_count : int or None
+        Reference points wanted; overrides `reference_fraction` when given.
+    reference_floor : int
+        At least this many reference points from `reference_fraction` (every vertex on meshes
+        that have fewer): a small mesh pays ~10 KB of direction tables anyway, and at 6.5 % its
+        few points lose to plain Lambert (benchmarks/README.md#prt-compression).
+    byte_budget : float or None
+        Bytes per vertex to spend (``refs+sh``; `compress.bytes_per_vertex` total): the reference count
+        becomes the most that fits (`compress.budget_reference_count`), overriding `reference_fraction`
+        and `reference_count`. For small meshes, whose fixed tables cost more per vertex.
+    sh_method : str
+        ``"lsq"`` or ``"quadrature"`` projection of Δq (see `sh.sh_fit_matrix`).
+    tables : str
+        Reference tables (``refs+sh``): ``"rgb"`` (the paper: K codes per channel), ``"shared"``
+        (K codes per reference point for all channels, a level per channel for each code, times
+        the point's RGB colour; see `compress.shared_tables`) or ``"auto"``: shared unless the channels'
+        directional shapes differ more than one shape can follow (`compress.resolve_tables`) and RGB tables
+        fit `byte_budget`. ``lloyd`` always stores RGB.
+    detail_order : int
+        With shared tables, SH order of each reference point's detail term (`compress.detail_tables`;
+        order² int8 coefficients and an int8 RGB colour per point, 0 for none). One shape per
+        point cannot follow the channels' different shadow edges (red diffuses farther), which on
+        dense smooth meshes is most of the error: there order 4 lowers it at the same bytes. On
+        meshes whose error is the interpolation between points it gains nothing and doubles the
+        vertex shader's time, hence off by default: turn it on for dense meshes
+        (benchmarks/README.md#prt-compression).
+    refine : float
+        Share of the reference points (``refs+sh``) added where the fit is worst
+        (`compress.refine_reference_points`) after simplification placed the rest, in [0, 1).
+    weight_bits : int
+        8 or 16 bits per weight code; 16 is used above 65536 reference triangles. The choice
+        was made when 8-bit weights shared a 4-byte attribute with the triangle; the file now
+        stores both as float32 at the same bytes (`prt_layout`), so 8 only rounds coarser
+        (benchmarks/README.md#prt-compression, #vertex-attribute-encodings).
+    """
+
+    mode: str = "refs+sh"
+    reference_fraction: float = 0.065
+    sh_order: int = 0
+    weights: str = "best_fit"
+    dq_percentile: float | None = None
+    reference_count: int | None = None
+    byte_budget: float | None = None
+    sh_method: str = "lsq"
+    tables: str = "auto"
+    refine: float = 0.6
+    weight_bits: int = 8
+    reference_floor: int = 256
+    detail_order: int = 0
+
+
+PRT_COMPRESS_DEFAULTS = PrtCompressOptions()
 _D = PRT_COMPRESS_DEFAULTS
 
 
@@ -29,7 +100,7 @@ class PrtOptions:
         Fraction of R_d the gather radius may drop.
     mode, reference_fraction, sh_order, weights, tables, refine, weight_bits, byte_budget, reference_floor,
     detail_order
-        The compression (`compress.PrtCompressOptions`).
+        The compression (`PrtCompressOptions`).
     """
 
     directions: int = option(200, "prt: light directions K (default {default})")
@@ -60,6 +131,8 @@ class PrtOptions:
 
     def check(self) -> None:
         """Raise ValueError with a one-line reason (naming the ``prt_*`` option) for an impossible setting."""
+        from sssbake.pipeline.core.sh import MAX_ORDER  # numpy's: imported by a check, not by the CLI's help
+
         if not (4 <= self.directions <= 4096):
             raise ValueError(f"prt_directions must be in [4, 4096], got {self.directions}")
         if not (0.0 < self.energy_dropped < 0.5):

@@ -41,7 +41,6 @@ from sssbake.pipeline.techniques.prt.compress import (
     compress_prt,
     evaluate,
 )
-from sssbake.pipeline.techniques.prt.options import PrtOptions
 from sssbake.pipeline.techniques.prt.precompute import irradiance_signal
 
 KS = (25, 50, 100, 200, 400)
@@ -190,10 +189,6 @@ def _plot(rows: list[dict], path: str) -> None:
 
 class PrtTradeoff:
     """``sssbake tradeoff --technique prt`` (`technique.Technique`'s tradeoff hooks)."""
-
-    def add_tradeoff_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--k", type=int, default=PrtOptions().directions,
-                            help="prt: directions for the compression sweeps")
 
     def run_tradeoff(self, path: Path, mm_per_unit: float, material: Material, out_dir: str | os.PathLike,
                      args: argparse.Namespace) -> dict:

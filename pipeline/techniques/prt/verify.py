@@ -18,9 +18,6 @@ class PrtVerify:
     def read_usd(self, path) -> dict:
         return read_prt_usd(path)
 
-    def bytes_per_vertex(self, block: dict) -> float:
-        return block["bytesPerVertex"]["total"]
-
     def verify_items(self, unit: VerifyUnit, data: dict, runtime: dict) -> tuple[dict, dict]:
         item = {**unit.base, "prt": data[(unit.mesh, unit.primitives[0])]}
         return item, item

@@ -25,7 +25,6 @@ resolution it never uses; the energy check covers it).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -39,6 +38,7 @@ from sssbake.pipeline.core.profile import (
 from sssbake.pipeline.core.profile_sampling import sample_radii
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.techniques.screen.data import ScreenSamples, table_integral
+from sssbake.pipeline.techniques.screen.options import SCREEN_DEFAULTS, ScreenSamplesOptions
 
 #: The uniform disc holds this share of the driving channel's R_d.
 UNIFORM_SHARE = 0.5
@@ -51,37 +51,6 @@ TABLE_INNER = 0.01
 #: Table sizes tried (powers of two).
 TABLE_SIZES = tuple(2**k for k in range(6, 15))
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
-
-
-@dataclass(frozen=True)
-class ScreenSamplesOptions:
-    """Attributes
-    ----------
-    samples : int
-        N, importance-sampled offsets.
-    uniform : int
-        U, uniform offsets (0: importance samples alone).
-    table_error : float
-        Bound on the Rd table's relative interpolation error.
-    seed : int
-        Jitter of the strata and of the spiral's start.
-    """
-
-    samples: int = 32
-    uniform: int = 8
-    table_error: float = 1e-3
-    seed: int = 0
-
-    def check(self) -> None:
-        if not (isinstance(self.samples, int) and 1 <= self.samples <= 4096):
-            raise ValueError(f"screen: samples must be a whole number in [1, 4096], got {self.samples!r}")
-        if not (isinstance(self.uniform, int) and 0 <= self.uniform <= 4096):
-            raise ValueError(f"screen: uniform must be a whole number in [0, 4096], got {self.uniform!r}")
-        if not (isinstance(self.table_error, (int, float)) and 1e-6 <= self.table_error <= 0.1):
-            raise ValueError(f"screen: table_error must be in [1e-6, 0.1], got {self.table_error!r}")
-
-
-SCREEN_DEFAULTS = ScreenSamplesOptions()
 
 
 def screen_samples(material: Material, options: ScreenSamplesOptions = SCREEN_DEFAULTS) -> ScreenSamples:

@@ -26,7 +26,6 @@ from sssbake.pipeline.mesh.clean import clean_scene
 from sssbake.pipeline.mesh.load import load_scene
 from sssbake.pipeline.mesh.subdivide import subdivided_surface
 from sssbake.pipeline.render.sweep import (
-    add_sweep_argument,
     reference_lights,
     reference_views,
     save_figure,
@@ -34,12 +33,11 @@ from sssbake.pipeline.render.sweep import (
     tradeoff_result,
     worst_rmse,
 )
+from sssbake.pipeline.techniques.screen.entry import SAMPLES, UNIFORM
 from sssbake.pipeline.techniques.screen.layout import screen_bytes, screen_tables
 from sssbake.pipeline.techniques.screen.runtime import SCREEN_RUNTIME_DEFAULTS, ScreenRuntimeOptions
 from sssbake.pipeline.techniques.screen.samples import SCREEN_DEFAULTS, ScreenSamplesOptions, screen_samples
 
-SAMPLES = (8, 16, 32, 64, 128)
-UNIFORM = (0, 4, 8, 16, 32)
 #: The runtime sweep: each changes one runtime option from the default.
 RUNTIME_CHANGES = ({"jacobian": True}, {"fill": False}, {"interleave": 1})
 
@@ -156,13 +154,6 @@ def _plot(rows: list[dict], path: str) -> None:
 
 class ScreenTradeoff:
     """``sssbake tradeoff --technique screen`` (`technique.Technique`'s tradeoff hooks)."""
-
-    def add_tradeoff_arguments(self, parser: argparse.ArgumentParser) -> None:
-        add_sweep_argument(parser, "--samples", int, SAMPLES, "screen: importance samples N swept")
-        add_sweep_argument(parser, "--uniform", int, UNIFORM, "screen: uniform samples U swept")
-        parser.add_argument("--reference-subdivisions", type=int, default=0,
-                            help="screen: midpoint subdivisions of the surface the per-vertex reference is computed "
-                                 "on (the technique shades per pixel; default 0)")
 
     def run_tradeoff(self, path: Path, mm_per_unit: float, material: Material, out_dir: str | os.PathLike,
                      args: argparse.Namespace) -> dict:

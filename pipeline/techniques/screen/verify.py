@@ -25,10 +25,6 @@ class ScreenVerify:
     def read_usd(self, path) -> dict:
         return read_screen_usd(path)
 
-    def bytes_per_vertex(self, block: dict) -> float:
-        """Nothing per vertex: the tables are per material."""
-        return 0.0
-
     def verify_items(self, unit: VerifyUnit, data: dict, runtime: dict) -> tuple[dict, dict]:
         item = {**unit.base, "screen": data[(unit.mesh, unit.primitives[0])], "mm_per_unit": unit.mm_per_unit}
         return item, item

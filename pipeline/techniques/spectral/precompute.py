@@ -27,35 +27,12 @@ from sssbake.pipeline.core.surface import Surface
 from sssbake.pipeline.techniques.spectral.laplacian import cotangent_laplacian
 from sssbake.pipeline.techniques.spectral.manifold_harmonics import manifold_harmonics
 from sssbake.pipeline.techniques.spectral.normals import NormalSpectrum, normal_spectrum
+from sssbake.pipeline.techniques.spectral.options import SPECTRAL_DEFAULTS, SpectralPrecomputeOptions
 
 #: Share of R_d within the naive neighbourhood's radius.
 NAIVE_ENERGY = 0.95
 #: Naive normals: the weight of a vertex's own normal (Patro: below 1).
 NAIVE_ALPHA = 0.5
-
-
-@dataclass(frozen=True)
-class SpectralPrecomputeOptions:
-    """Attributes
-    ----------
-    eigenpairs : int
-        m, the harmonics the normals are filtered in (fewer on smaller meshes).
-    width_mm : float or None
-        The filter's spatial standard deviation s; None: from the material (module docstring).
-    """
-
-    eigenpairs: int = 300
-    width_mm: float | None = None
-
-    def check(self) -> None:
-        if not (isinstance(self.eigenpairs, int) and 1 <= self.eigenpairs <= 5000):
-            raise ValueError(f"spectral: eigenpairs must be a whole number in [1, 5000], got {self.eigenpairs!r}")
-        value = self.width_mm
-        if value is not None and not (isinstance(value, (int, float)) and 0 <= value < float("inf")):
-            raise ValueError(f"spectral: width_mm must be a finite number >= 0 or None, got {value!r}")
-
-
-SPECTRAL_DEFAULTS = SpectralPrecomputeOptions()
 
 
 @dataclass(frozen=True, eq=False)

@@ -170,9 +170,6 @@ def _plot(rows: list[dict], path: str) -> None:
 class SpectralTradeoff:
     """``sssbake tradeoff --technique spectral`` (`technique.Technique`'s tradeoff hooks)."""
 
-    def add_tradeoff_arguments(self, parser: argparse.ArgumentParser) -> None:
-        """The sweeps are fixed (`EIGENPAIRS`, `WIDTH_FACTORS`, `ALPHAS`): no arguments of its own."""
-
     def run_tradeoff(self, path: Path, mm_per_unit: float, material: Material, out_dir: str | os.PathLike,
                      args: argparse.Namespace) -> dict:
         return spectral_tradeoff(path, mm_per_unit, material, out_dir, lights=args.lights, size=args.size)

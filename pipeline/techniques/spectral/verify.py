@@ -27,10 +27,6 @@ class SpectralVerify:
     def read_usd(self, path) -> dict:
         return read_spectral_usd(path)
 
-    def bytes_per_vertex(self, block: dict) -> float:
-        """The normal per render vertex plus the optional re-filtering tables per vertex."""
-        return block["bytes"]["perVertex"] + block["bytes"]["normalPerRenderVertex"]
-
     def verify_items(self, unit: VerifyUnit, data: dict, runtime: dict) -> tuple[dict, dict]:
         subsurface = np.concatenate([data[(unit.mesh, p)] for p in unit.primitives])
         # The file's normals stay the item's: the q draw's exit Fresnel then matches the baseline's.
