@@ -34,7 +34,11 @@ Layout of the file (one crate file, plus its thickness textures as PNG files nex
   ``outputs:sss:thickness``. The ``sss:`` attributes of `_scattering_attributes` include the
   OpenPBR subsurface parameters (``sss:openpbr:*``); usd-core has no MaterialX (no ``UsdMtlx``,
   no ``ND_open_pbr_surface_surfaceshader`` in its Sdr registry, so UsdValidation refuses such a
-  shader), so no OpenPBR shader is authored;
+  shader), so no OpenPBR shader is authored. Where the bake writes the asset's OpenPBR MaterialX
+  document (``<stem>.mtlx``, `exporters.mtlx`) each Material prim names it: ``sss:materialx`` =
+  ``@./<stem>.mtlx@`` (asset) and ``sss:materialx:material`` (string), its surfacematerial there, the
+  prim's own name (`material_prim_names`); a reference would not resolve in usd-core (no ``.mtlx``
+  file format);
 - on the root prim ``sss:schemaVersion`` and ``sss:extras`` (`BakedAsset.extras` as a JSON
   string); on each Mesh prim of a mesh with `BakedAsset.mesh_extras` its own ``sss:extras``; on
   each translucent Material prim with `BakedAsset.material_extras` its own ``sss:extras``. Numpy
@@ -66,6 +70,7 @@ from sssbake.exporters.atomic import atomic_path
 from sssbake.exporters.finite import check_finite, finite_number
 from sssbake.exporters.gltf import ENCODINGS, dequantize, generator, quantize, table_crc32
 from sssbake.pipeline.core.errors import StaleDataError
+from sssbake.pipeline.core.engine_materials import openpbr_subsurface
 from sssbake.pipeline.mesh.baked import (
     SCHEMA_VERSION,
     BakedAsset,
@@ -84,6 +89,8 @@ THICKNESS_READER = "ThicknessUV"
 #: The Material output the thickness texture (file units) is wired to.
 THICKNESS_OUTPUT = SSS + "thickness"
 FACE_BLOCKS = ("faceVertexCounts", "faceVertexIndices")
+#: The Material prim attribute naming the asset's OpenPBR MaterialX document (`materialx_file`).
+MATERIALX = SSS + "materialx"
 #: What a Material's customData says UsdPreviewSurface cannot carry.
 PREVIEW_SURFACE_NOTE = ("UsdPreviewSurface has no diffuse transmission and no volume attenuation "
                         "(glTF KHR_materials_diffuse_transmission, KHR_materials_volume): they are the "
@@ -123,9 +130,7 @@ def thickness_texture_files(asset: BakedAsset, stem: str) -> dict[int, str]:
     bytes that are not UTF-8 (a POSIX file name may): in a `stem` with any, those characters and
     every ``%`` are written ``%XX``, byte by byte (``a%0Ab`` for ``a`` newline ``b``).
     """
-    if any(_refused_in_asset_path(c) for c in stem):
-        stem = "".join("".join(f"%{b:02X}" for b in os.fsencode(c)) if c == "%" or _refused_in_asset_path(c) else c
-                       for c in stem)
+    stem = _asset_stem(stem)
     out: dict[int, str] = {}
     for m in sorted(asset.scattering):
         ref = asset.scattering[m].fallback.thickness_texture
@@ -136,6 +141,21 @@ def thickness_texture_files(asset: BakedAsset, stem: str) -> dict[int, str]:
     return out
 
 
+def materialx_file(stem: str) -> str:
+    """The name of the OpenPBR MaterialX document next to a .usdc of file stem `stem`:
+    ``<stem>.mtlx``, `stem` escaped as in `thickness_texture_files` (the .usdc names it in an asset path)."""
+    return _asset_stem(stem) + ".mtlx"
+
+
+def _asset_stem(stem: str) -> str:
+    """`stem` as a USD asset path can hold it: if it has control characters or bytes that are not
+    UTF-8, those and every ``%`` written ``%XX`` byte by byte (`thickness_texture_files`)."""
+    if any(_refused_in_asset_path(c) for c in stem):
+        stem = "".join("".join(f"%{b:02X}" for b in os.fsencode(c)) if c == "%" or _refused_in_asset_path(c) else c
+                       for c in stem)
+    return stem
+
+
 def _refused_in_asset_path(c: str) -> bool:
     # Cc: the C0 and C1 controls and DEL (Sdf.AssetPath refuses them); Cs: a byte that is not UTF-8,
     # as os.fsdecode's surrogate escape holds it (not UTF-8, so not a USD string)
@@ -143,7 +163,7 @@ def _refused_in_asset_path(c: str) -> bool:
 
 
 def to_stage(asset: BakedAsset, root_name: str = "Root",
-             texture_files: dict[int, str] | None = None) -> tuple[Usd.Stage, dict]:
+             texture_files: dict[int, str] | None = None, materialx: str | None = None) -> tuple[Usd.Stage, dict]:
     """Build `asset` as an in-memory stage.
 
     Parameters
@@ -154,6 +174,10 @@ def to_stage(asset: BakedAsset, root_name: str = "Root",
     texture_files : dict of int to str, optional
         Texture index -> file name next to the .usdc (`thickness_texture_files`); a thickness
         texture not listed gets no UsdUVTexture (nothing is written to disk here).
+    materialx : str, optional
+        File name of the asset's OpenPBR MaterialX document next to the .usdc (`materialx_file`,
+        written by `exporters.mtlx.write_mtlx`): each Material prim then names it in
+        ``sss:materialx`` and its material in it in ``sss:materialx:material``.
 
     Returns
     -------
@@ -189,7 +213,7 @@ def to_stage(asset: BakedAsset, root_name: str = "Root",
     every = {a.gltf_name: a.usd_name for attrs in asset.vertex_attributes.values() for a in attrs}
     _string_attribute(root, SSS + "extras", _extras_json(asset.extras, root, "extras", every))
 
-    materials = _materials(stage, root_path.AppendChild(MATERIALS_SCOPE), asset, texture_files or {})
+    materials = _materials(stage, root_path.AppendChild(MATERIALS_SCOPE), asset, texture_files or {}, materialx)
 
     acc = _Accounting()
     for m, mesh_paths in _node_specs(stage, root_path, scene):
@@ -269,12 +293,13 @@ def _transform_op(spec: Sdf.PrimSpec, matrix: np.ndarray) -> None:
     order.default = Vt.TokenArray(["xformOp:transform"])
 
 
-def write_usdc(asset: BakedAsset, path: str | os.PathLike) -> dict:
+def write_usdc(asset: BakedAsset, path: str | os.PathLike, materialx: str | None = None) -> dict:
     """Write `asset` to `path` (.usdc) and its thickness textures next to it, each atomically, the
     .usdc last: on any error the .usdc is left as it was and no temporary file remains.
 
     The default prim is named after the file stem (made a valid identifier); the textures are
-    `thickness_texture_files`, referenced by relative asset paths.
+    `thickness_texture_files`, referenced by relative asset paths. `materialx`: the file name of
+    the OpenPBR MaterialX document the caller writes next to it (`materialx_file`, `to_stage`).
 
     Returns
     -------
@@ -284,7 +309,7 @@ def write_usdc(asset: BakedAsset, path: str | os.PathLike) -> dict:
     """
     path = Path(path)
     files = thickness_texture_files(asset, path.stem)
-    stage, summary = to_stage(asset, path.stem, files)
+    stage, summary = to_stage(asset, path.stem, files, materialx)
     with contextlib.ExitStack() as stack:
         # entered first, renamed last: a new .usdc never appears without its textures
         usdc = stack.enter_context(atomic_path(path))
@@ -528,19 +553,25 @@ def _vt_checked(type_name: Sdf.ValueTypeName, values: np.ndarray, n: int, elemen
     return vt
 
 
+def material_prim_names(materials: tuple[SourceMaterial, ...]) -> list[str]:
+    """The prim name of each material under ``/<Root>/Materials``, in order: its name made a valid
+    identifier, ``_<k>`` appended to a repeat (the MaterialX document uses the same names)."""
+    taken: dict[str, int] = {}
+    return [_unique(_identifier(src.name, f"material{m}"), taken) for m, src in enumerate(materials)]
+
+
 def _materials(stage: Usd.Stage, scope_path: Sdf.Path, asset: BakedAsset,
-               texture_files: dict[int, str]) -> list[UsdShade.Material]:
+               texture_files: dict[int, str], materialx: str | None) -> list[UsdShade.Material]:
     scene = asset.scene
     if not scene.materials:
         return []
     UsdGeom.Scope.Define(stage, scope_path)
-    taken: dict[str, int] = {}
     paths = []
+    names = material_prim_names(scene.materials)
     with Sdf.ChangeBlock():  # the prims as specs first, then defined: see `_node_specs`
         parent = stage.GetRootLayer().GetPrimAtPath(scope_path)
-        for m, src in enumerate(scene.materials):
-            spec = Sdf.PrimSpec(parent, _unique(_identifier(src.name, f"material{m}"), taken), Sdf.SpecifierDef,
-                                "Material")
+        for name in names:
+            spec = Sdf.PrimSpec(parent, name, Sdf.SpecifierDef, "Material")
             Sdf.PrimSpec(spec, SHADER_NAME, Sdf.SpecifierDef, "Shader")
             paths.append(spec.path)
     out = []
@@ -552,6 +583,13 @@ def _materials(stage: Usd.Stage, scope_path: Sdf.Path, asset: BakedAsset,
         for name, type_name, value in _surface_inputs(src, scattering):
             shader.CreateInput(name, type_name).Set(value)
         material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+        if materialx is not None:
+            # usd-core reads no .mtlx (no UsdMtlx file format, no OpenPBR node in Sdr): a reference to it
+            # would not resolve, so the document and the material in it are named, for a MaterialX-enabled
+            # USD build to bind (docs/engines.md, "OpenPBR / MaterialX")
+            material.GetPrim().CreateAttribute(MATERIALX, _T.Asset, custom=True).Set(
+                Sdf.AssetPath("./" + materialx))
+            _string_attribute(material.GetPrim(), MATERIALX + ":material", names[m])
         if scattering is not None:
             what = f"material {src.name!r}"
             material.GetPrim().SetCustomDataByKey("sssbake:previewSurface", PREVIEW_SURFACE_NOTE)
@@ -621,14 +659,14 @@ def _scattering_attributes(scattering: ScatteringMaterial, mm_per_unit: float, w
     ``:diffuseTransmissionColor`` (color3f), ``:thicknessFactor``, ``:attenuationDistance``
     (float, file units; omitted when infinite, i.e. no attenuation), ``:diffuseTransmissionFactor``,
     ``:transmissionFactor``, ``:ior`` (float); and what an OpenPBR surface
-    (``ND_open_pbr_surface_surfaceshader``) would take: ``sss:openpbr:subsurfaceWeight`` (1),
-    ``:subsurfaceColor`` (color3f, the fallback's R_d), ``:subsurfaceRadius`` (float, file units:
-    the largest reduced mean free path 1/σ'_t over RGB / `mm_per_unit`) and ``:subsurfaceRadiusScale``
-    (color3f, each channel's mean free path / the radius).
+    (``ND_open_pbr_surface_surfaceshader``) would take, `engine_materials.openpbr_subsurface`:
+    ``sss:openpbr:subsurfaceWeight`` (1), ``:subsurfaceColor`` (color3f, the medium's R_d),
+    ``:subsurfaceRadius`` (float, file units: the largest reduced mean free path 1/σ'_t over RGB /
+    `mm_per_unit`), ``:subsurfaceRadiusScale`` (color3f, each channel's mean free path / the radius)
+    and ``:subsurfaceScatterAnisotropy`` (float, 0).
     """
     mat, fb = scattering.material, scattering.fallback
-    mfp = np.asarray(mat.mean_free_path_mm, dtype=np.float64) / mm_per_unit
-    radius = float(mfp.max())
+    openpbr = openpbr_subsurface(mat, mm_per_unit)
     out = [
         (SSS + "schemaVersion", _T.String, SCHEMA_VERSION),
         (SSS + "materialName", _T.String, mat.name),
@@ -651,10 +689,14 @@ def _scattering_attributes(scattering: ScatteringMaterial, mm_per_unit: float, w
         (SSS + "fallback:transmissionFactor", _T.Float,
          finite_number(fb.transmission_factor, f"{what} transmission_factor")),
         (SSS + "fallback:ior", _T.Float, finite_number(fb.ior, f"{what} fallback ior")),
-        (SSS + "openpbr:subsurfaceWeight", _T.Float, 1.0),
-        (SSS + "openpbr:subsurfaceColor", _T.Color3f, Gf.Vec3f(*_vec3(fb.base_color, f"{what} fallback base_color"))),
-        (SSS + "openpbr:subsurfaceRadius", _T.Float, finite_number(radius, f"{what} subsurface radius")),
-        (SSS + "openpbr:subsurfaceRadiusScale", _T.Color3f, Gf.Vec3f(*_vec3(mfp / radius, f"{what} radius scale"))),
+        (SSS + "openpbr:subsurfaceWeight", _T.Float, openpbr["subsurface_weight"]),
+        (SSS + "openpbr:subsurfaceColor", _T.Color3f,
+         Gf.Vec3f(*_vec3(openpbr["subsurface_color"], f"{what} subsurface color"))),
+        (SSS + "openpbr:subsurfaceRadius", _T.Float,
+         finite_number(openpbr["subsurface_radius"], f"{what} subsurface radius")),
+        (SSS + "openpbr:subsurfaceRadiusScale", _T.Color3f,
+         Gf.Vec3f(*_vec3(openpbr["subsurface_radius_scale"], f"{what} radius scale"))),
+        (SSS + "openpbr:subsurfaceScatterAnisotropy", _T.Float, openpbr["subsurface_scatter_anisotropy"]),
     ]
     if fb.attenuation_distance != math.inf:
         out.append((SSS + "fallback:attenuationDistance", _T.Float,

@@ -2,6 +2,7 @@
 // and scale by the light's irradiance.
 #include "sss_common.glsl"
 #include "prt_decode.glsl"
+#include "surface_maps_vert.glsl"
 
 in vec3 in_position;
 in vec3 in_normal;
@@ -28,5 +29,6 @@ void main() {
     v_q = v_irradiance * max(prt_decode(gl_VertexID, l_object), vec3(0.0));
     v_normal = u_normal_matrix * in_normal;
     v_position = world.xyz;
+    pass_surface_maps();
     gl_Position = u_view_projection * world;
 }

@@ -3,6 +3,7 @@
 // vis from the shadow map), and its unit normal with a coverage flag. Drawn with plain.vert.
 #include "sss_common.glsl"
 #include "shadow.glsl"
+#include "surface_maps_frag.glsl"
 
 in vec3 v_position;
 in vec3 v_normal;
@@ -18,7 +19,8 @@ void main() {
     vec3 n = sss_normalize(v_normal);
     float irradiance;
     vec3 l = sss_light(u_point_light, u_light, u_intensity, u_mm_per_unit, v_position, irradiance);
-    float cos_i = max(dot(n, l), 0.0);
+    // the normal map tilts where light enters; the gather's tangent frame keeps the geometric normal
+    float cos_i = max(dot(surface_normal(n, v_position), l), 0.0);
     float e = fresnel_transmittance(u_eta, cos_i) * cos_i * surface_visibility(v_position, n, l) * irradiance / SSS_PI;
     f_position = vec4(v_position, e);
     f_normal = vec4(n, 1.0);

@@ -30,6 +30,11 @@ const COMPONENTS = { SCALAR: 1, VEC2: 2, VEC3: 3, VEC4: 4, MAT2: 4, MAT3: 9, MAT
 const ARRAYS = { 5120: Int8Array, 5121: Uint8Array, 5122: Int16Array, 5123: Uint16Array, 5125: Uint32Array, 5126: Float32Array };
 /** Screen runtime defaults (pipeline/techniques/screen/runtime.py ScreenRuntimeOptions). */
 const SCREEN_DEFAULTS = { jacobian: true, fill: true, interleave: 4, resolve: true };
+/** This runtime's addition to screen (off: the moderngl runtime's passes exactly): light through
+ * thin parts, from the file's fallback (screen_surface.frag, SSS_TRANSMISSION). */
+const SCREEN_TRANSMISSION = true;
+/** three's names of the TEXCOORD_n attributes, by Texture.channel. */
+const UV_ATTRIBUTES = ['uv', 'uv1', 'uv2', 'uv3'];
 /** Length of the shader's SH coefficient arrays: SH_MAX_ORDER² (sh_basis.glsl). */
 const SH_MAX_TERMS = 64;
 export const MODES = ['prt', 'spectral', 'screen', 'fallback', 'plain'];
@@ -398,6 +403,59 @@ function tableIntegral(table, reach) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// The glTF material's maps and screen's transmission
+
+/** The base-colour texture and normal map of three material `material` (GLTFLoader's, the
+ * fallback's) as surface_maps_*.glsl takes them: macros, vertex inputs, uniforms. The texture
+ * objects are the material's own (sRGB decoding, filtering, KHR_texture_transform as three set
+ * them up); a map whose texture coordinates the primitive lacks is left out, as three does. */
+function surfaceMaps(material, geometry) {
+  const out = { defines: '', sources: {}, uniforms: {}, textures: [] };
+  const add = (texture, macro, input, uniforms) => {
+    const uv = texture && geometry.attributes[UV_ATTRIBUTES[texture.channel]];
+    if (!uv) return;
+    texture.updateMatrix();
+    out.defines += `#define ${macro}\n`;
+    out.sources[input] = uv;
+    out.textures.push(texture);
+    Object.assign(out.uniforms, uniforms(texture));
+  };
+  add(material && material.map, 'SSS_ALBEDO_MAP', 'in_albedo_uv',
+    (t) => ({ u_albedo_map: { value: t }, u_albedo_uv_transform: { value: t.matrix } }));
+  add(material && material.normalMap, 'SSS_NORMAL_MAP', 'in_normal_uv', (t) => ({
+    u_normal_map: { value: t }, u_normal_uv_transform: { value: t.matrix }, u_normal_scale: { value: material.normalScale },
+  }));
+  return out;
+}
+
+/** screen_surface.frag's transmission (SSS_TRANSMISSION) from glTF material `def` (JSON) of a
+ * primitive with baked thickness `thickness` (mm per vertex, component 0), file unit `scaleMm` mm,
+ * or null where the file's fallback transmits nothing. The fallback (pipeline/bake/fallback.py
+ * make_fallback) writes the slab transmittance at the median thickness d as the diffuse
+ * transmission lobe, T(d) = (1 - transmissionFactor) diffuseTransmissionFactor
+ * diffuseTransmissionColorFactor, and the diffusion extinction as the volume's attenuation,
+ * attenuationColor = e^(-sigma_tr attenuationDistance) (file units); d is the median of the
+ * thickness the file carries (the bake's is over welded vertices: seam copies aside, the same). */
+function transmissionUniforms(def, thickness, scaleMm) {
+  const ext = (def && def.extensions) || {};
+  const diffuse = ext.KHR_materials_diffuse_transmission;
+  if (!diffuse || !thickness || !(diffuse.diffuseTransmissionFactor > 0)) return null;
+  const keep = 1 - ((ext.KHR_materials_transmission || {}).transmissionFactor || 0);
+  const colour = diffuse.diffuseTransmissionColorFactor || [1, 1, 1];
+  const volume = ext.KHR_materials_volume || {};
+  const attenuation = volume.attenuationColor || [1, 1, 1];
+  const distanceMm = (volume.attenuationDistance === undefined ? Infinity : volume.attenuationDistance) * scaleMm;
+  const values = Float32Array.from({ length: thickness.count }, (_, i) => thickness.getX(i)).sort();
+  const half = values.length >> 1;
+  const median = values.length % 2 ? values[half] : 0.5 * (values[half - 1] + values[half]);
+  return {
+    u_transmittance: { value: new THREE.Vector3(...colour.map((c) => keep * diffuse.diffuseTransmissionFactor * c)) },
+    u_sigma_tr: { value: new THREE.Vector3(...attenuation.map((c) => (c > 0 ? -Math.log(c) / distanceMm : 0))) },
+    u_median_mm: { value: median },
+  };
+}
+
+// ---------------------------------------------------------------------------------------------
 // Runtime
 
 function floatTarget(width, height, extra = {}) {
@@ -484,16 +542,18 @@ export async function createRuntime(renderer, scene, gltf, options = {}) {
   const library = new ShaderLibrary(shaderBase);
   const settings = {
     exposure: 1, srgb: true, specular: 0, shininess: 64, shadowSize: 2048, ...options,
-    screen: { ...SCREEN_DEFAULTS, ...(options.screen || {}) },
+    screen: { ...SCREEN_DEFAULTS, transmission: SCREEN_TRANSMISSION, ...(options.screen || {}) },
   };
+  const json = (gltf.parser && gltf.parser.json) || {};
+  const thicknessName = ((gltf.userData.sssbake && gltf.userData.sssbake.root.attributes) || [])
+    .filter((a) => a.key === 'thickness').map((a) => a.name.toLowerCase())[0];
   const width = Math.min(TABLE_WIDTH, renderer.capabilities.maxTextureSize);
   // a mesh without sssbake data draws plain, where only the specular lobe reads eta
   const eta = (mesh) => (mesh.userData.sssbake && mesh.userData.sssbake.material ? mesh.userData.sssbake.material.eta : 1.5);
   scene.updateMatrixWorld(true);
 
-  const [plainVert, plainFrag, prtFrag, screenSurface, depthOnly, gbuffer, fullscreen, gather, resolve] = await Promise.all(
-    ['plain.vert', 'plain.frag', 'sss_surface.frag', 'screen_surface.frag', 'depth_only.frag', 'screen_gbuffer.frag',
-      'fullscreen.vert', 'screen_gather.frag', 'screen_resolve.frag'].map((n) => library.source(n)));
+  const [depthOnly, fullscreen, gather, resolve] = await Promise.all(
+    ['depth_only.frag', 'fullscreen.vert', 'screen_gather.frag', 'screen_resolve.frag'].map((n) => library.source(n)));
 
   const light = { direction: new THREE.Vector3(0.4, 0.8, 0.45).normalize(), color: new THREE.Color(1, 1, 1), intensity: 1 };
   // the fallback's three.js light, the same light for the file's own materials
@@ -517,6 +577,7 @@ export async function createRuntime(renderer, scene, gltf, options = {}) {
   scene.traverse((o) => { if (o.isMesh) meshes.push(o); });
   const techniques = new Set();
   const items = [];
+  const shared = new Set();  // the file's own textures, which the fallback still draws with
   for (const mesh of meshes) {
     const data = mesh.userData.sssbake || { techniques: {} };
     const original = mesh.material;
@@ -525,39 +586,50 @@ export async function createRuntime(renderer, scene, gltf, options = {}) {
     // glTF lets a primitive omit normals (flat shading); the shaders need one per vertex
     if (!mesh.geometry.attributes.normal) mesh.geometry.computeVertexNormals();
     const attrs = mesh.geometry.attributes;
-    const sources = { in_position: attrs.position, in_normal: attrs.normal };
+    // every mode keeps the material's base-colour texture and normal map
+    const maps = surfaceMaps(original, mesh.geometry);
+    maps.textures.forEach((texture) => shared.add(texture));
+    const sources = { in_position: attrs.position, in_normal: attrs.normal, ...maps.sources };
+    const surface = (albedo) => ({ ...surfaceUniforms(mesh, albedo), ...maps.uniforms });
+    const [plainVert, plainFrag] = await Promise.all(['plain.vert', 'plain.frag'].map((n) => library.source(n, maps.defines)));
     const item = { mesh, original, materials: {}, geometries: {} };
     const plainGeometry = programGeometry(mesh.geometry, plainVert, sources);
-    item.materials.plain = rawMaterial(plainVert, plainFrag, surfaceUniforms(mesh, color));
+    item.materials.plain = rawMaterial(plainVert, plainFrag, surface(color));
     item.geometries.plain = plainGeometry;
     const t = data.techniques;
     if (t.prt) {
       const defines = `#define PRT_SH_ORDER ${t.prt.shOrder}\n#define PRT_DETAIL_ORDER ${t.prt.detailOrder || 0}\n`
-        + (t.prt.weightBits === 8 ? '#define PRT_COMPACT\n' : '');
-      const vertex = await library.source('prt.vert', defines);
+        + (t.prt.weightBits === 8 ? '#define PRT_COMPACT\n' : '') + maps.defines;
+      const [vertex, prtFrag] = await Promise.all([library.source('prt.vert', defines), library.source('sss_surface.frag', maps.defines)]);
       const prtSources = { ...sources, in_prt_ref: attrs[t.prt.attributes.ref.toLowerCase()] };
       item.geometries.prt = programGeometry(mesh.geometry, vertex, prtSources);
-      item.materials.prt = rawMaterial(vertex, prtFrag, { ...surfaceUniforms(mesh, new THREE.Vector3()), ...prtUniforms(t.prt, mesh.geometry, width) });
+      item.materials.prt = rawMaterial(vertex, prtFrag, { ...surface(new THREE.Vector3()), ...prtUniforms(t.prt, mesh.geometry, width) });
       techniques.add('prt');
     }
     if (t.spectral) {
       const normal = attrs[t.spectral.attributes.normal.toLowerCase()];
       item.geometries.spectral = programGeometry(mesh.geometry, plainVert, { ...sources, in_normal: normal });
-      item.materials.spectral = rawMaterial(plainVert, plainFrag, surfaceUniforms(mesh, color));
+      item.materials.spectral = rawMaterial(plainVert, plainFrag, surface(color));
       techniques.add('spectral');
     }
     if (t.screen) {
-      item.screen = screenPasses(mesh, t.screen, data.scaleMm, plainGeometry);
-      item.geometries.screen = plainGeometry;
-      item.materials.screen = rawMaterial(plainVert, screenSurface, {
-        ...surfaceUniforms(mesh, new THREE.Vector3()), u_scattered: { value: item.screen.scattered.texture },
+      const gbuffer = await library.source('screen_gbuffer.frag', maps.defines);
+      item.screen = screenPasses(mesh, t.screen, data.scaleMm, plainGeometry, plainVert, gbuffer, maps.uniforms);
+      const primitive = json.meshes && json.meshes[data.mesh].primitives[data.primitive];
+      const through = settings.screen.transmission && primitive
+        ? transmissionUniforms(json.materials[primitive.material], attrs[thicknessName], data.scaleMm) : null;
+      const defines = maps.defines + (through ? '#define SSS_TRANSMISSION\n' : '');
+      const [vertex, fragment] = await Promise.all([library.source('plain.vert', defines), library.source('screen_surface.frag', defines)]);
+      item.geometries.screen = through ? programGeometry(mesh.geometry, vertex, { ...sources, in_thickness: attrs[thicknessName] }) : plainGeometry;
+      item.materials.screen = rawMaterial(vertex, fragment, {
+        ...surface(new THREE.Vector3()), ...through, u_scattered: { value: item.screen.scattered.texture },
       });
       techniques.add('screen');
     }
     items.push(item);
   }
 
-  function screenPasses(mesh, screen, scaleMm, geometry) {
+  function screenPasses(mesh, screen, scaleMm, geometry, plainVert, gbuffer, mapUniforms) {
     const size = renderer.getDrawingBufferSize(new THREE.Vector2());
     const count = screen.offsets.count;
     const samples = new Float32Array(4 * count);
@@ -579,7 +651,7 @@ export async function createRuntime(renderer, scene, gltf, options = {}) {
     });
     const shadowMaterial = rawMaterial(plainVert, depthOnly, transforms());
     const gbufferMaterial = rawMaterial(plainVert, gbuffer, {
-      ...transforms(), ...lightUniforms(), u_eta: { value: eta(mesh) },
+      ...transforms(), ...lightUniforms(), ...mapUniforms, u_eta: { value: eta(mesh) },
       u_light_view_projection: { value: new THREE.Matrix4() }, u_shadow: { value: shadowTarget.depthTexture },
       u_shadow_offset: { value: 0 },
     });
@@ -772,7 +844,7 @@ export async function createRuntime(renderer, scene, gltf, options = {}) {
       scene.remove(sun, sun.target);
       for (const item of items) {
         for (const m of Object.values(item.materials)) {
-          for (const u of Object.values(m.uniforms)) if (u.value && u.value.isTexture) u.value.dispose();
+          for (const u of Object.values(m.uniforms)) if (u.value && u.value.isTexture && !shared.has(u.value)) u.value.dispose();
           m.dispose();
         }
         for (const g of new Set(Object.values(item.geometries))) g.dispose();

@@ -139,7 +139,9 @@ def test_inspect_prints_a_summary_and_refuses_files_without_sssbake_data(baked_s
     for material in gltf.materials:
         material.extensions = {}
     gltf.asset.generator = "some exporter"  # no tool known to strip sssbake data (those are named instead)
-    gltf.save(str(tmp_path / "stripped.glb"))
+    # not `save`: it swaps in its default Asset, one object shared by every call, which another test may
+    # have given a generator
+    gltf.save_binary(str(tmp_path / "stripped.glb"))
     for command in ("inspect", "verify"):
         assert main([command, str(tmp_path / "stripped.glb")]) == 1
         assert capsys.readouterr().err == (f"error: {tmp_path / 'stripped.glb'}: no SSSBAKE_subsurface data: not a "
@@ -205,8 +207,8 @@ def test_bad_inputs_fail_alone_and_leave_nothing(tmp_path, capsys):
         assert rec["error"] in err
     leftovers = sorted(p.name for p in out.rglob("*") if p.is_file() and ".sssbake-cache" not in p.parts)
     # the batch lock (`batch._batch_lock`) stays: it is how a later batch knows whether it runs alone
-    assert leftovers == [".sssbake.lock", "batch.json", "good.glb", "good.report.json", "good.thickness0.png",
-                         "good.usdc"]
+    assert leftovers == [".sssbake.lock", "batch.json", "good.glb", "good.materials.json", "good.mtlx",
+                         "good.report.json", "good.thickness0.png", "good.usdc"]
 
 
 def test_missing_scale_is_refused_not_guessed(tmp_path, capsys):

@@ -40,8 +40,9 @@ def test_hostile_names_bake_or_fail_on_one_line(tmp_path, capsys):
     # every line is one line: the names' newlines and undecodable bytes written as escapes
     garbage, longest = sorted(line for line in printed.err.splitlines() if line.startswith("error:"))
     assert garbage == f"error: {src}/bad\\nx.obj: no triangles: the file has no geometry"
+    # the .mtlx, as long a name as the .usdc's, is written first
     assert longest.startswith(f"error: {src / LONGEST}.obj: {out}/") and longest.endswith(
-        f"/{LONGEST}.usdc: File name too long (256 bytes; this folder allows 255): give the asset a shorter name")
+        f"/{LONGEST}.mtlx: File name too long (256 bytes; this folder allows 255): give the asset a shorter name")
     lines = printed.out.splitlines()
     assert sorted(line.split("  (")[0] for line in lines[:-1]) == sorted(
         f"        ok  {src}/{stem}.obj" for stem in ("good", "nl\\nname", "\\xff\\xfe", LONG))
@@ -55,12 +56,15 @@ def test_hostile_names_bake_or_fail_on_one_line(tmp_path, capsys):
     textures = {"good": "good", NEWLINE: "nl%0Aname", NOT_UTF8: "%FF%FE", LONG: LONG}
     expected = [".sssbake.lock", "batch.json"]
     for stem, texture in textures.items():
-        expected += [f"{stem}.glb", f"{stem}.report.json", f"{texture}.thickness0.png", f"{stem}.usdc"]
+        expected += [f"{stem}.glb", f"{stem}.materials.json", f"{stem}.report.json", f"{texture}.thickness0.png",
+                     f"{texture}.mtlx", f"{stem}.usdc"]
         stage = Usd.Stage.Open(os.fsencode(out / f"{stem}.usdc"))
         files = [UsdShade.Shader(p).GetInput("file").Get() for p in stage.Traverse()
                  if p.GetName() == "ThicknessTexture"]
         assert [(f.path, f.resolvedPath) for f in files] == [(f"./{texture}.thickness0.png",
                                                               str(out / f"{texture}.thickness0.png"))]
+        documents = {p.GetAttribute("sss:materialx").Get() for p in stage.Traverse() if p.HasAttribute("sss:materialx")}
+        assert [(d.path, d.resolvedPath) for d in documents] == [(f"./{texture}.mtlx", str(out / f"{texture}.mtlx"))]
     assert sorted(p.name for p in out.iterdir() if p.name != ".sssbake-cache") == sorted(expected)
 
 
@@ -80,5 +84,6 @@ def test_a_missing_module_is_named_not_blamed_on_the_file(tmp_path, monkeypatch)
     assert by_name["latin1.obj"]["error"] == (
         f"{src / 'latin1.obj'}: needs the Python module charset_normalizer (import of charset_normalizer halted; "
         "None in sys.modules): pip install charset-normalizer")
-    assert sorted(p.name for p in out.iterdir()) == [".sssbake.lock", "batch.json", "good.glb", "good.report.json",
+    assert sorted(p.name for p in out.iterdir()) == [".sssbake.lock", "batch.json", "good.glb",
+                                                    "good.materials.json", "good.mtlx", "good.report.json",
                                                     "good.thickness0.png", "good.usdc"]

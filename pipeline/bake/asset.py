@@ -22,7 +22,9 @@ from PIL import Image as PILImage
 
 from sssbake.exporters.atomic import atomic_path
 from sssbake.exporters.gltf import write_glb
-from sssbake.exporters.usd import write_usdc
+from sssbake.exporters.materials_json import write_materials_json
+from sssbake.exporters.mtlx import write_mtlx
+from sssbake.exporters.usd import materialx_file, write_usdc
 from sssbake.pipeline.bake.cache import StageCache, stage_key
 from sssbake.pipeline.bake.fallback import make_fallback
 from sssbake.pipeline.bake.stages import (
@@ -47,7 +49,7 @@ from sssbake.pipeline.mesh.clean import CleanScene, clean_scene
 from sssbake.pipeline.mesh.confine import Confinement
 from sssbake.pipeline.mesh.digest import file_digest
 from sssbake.pipeline.mesh.scale import instance_scale, resolve_scale_mm
-from sssbake.pipeline.mesh.scene import Image, Mesh, Scene, Texture, TextureRef
+from sssbake.pipeline.mesh.scene import Image, Mesh, Scene, SourceMaterial, Texture, TextureRef
 from sssbake.pipeline.mesh.thickness import ThicknessResult, miss_warnings
 from sssbake.pipeline.mesh.thickness_map import ThicknessMap
 from sssbake.pipeline.options import BakeOptions
@@ -278,7 +280,8 @@ def bake_asset(
             runner.skip(t.name, "the plan chose it for no object (--techniques auto)" if b.auto
                         else f"not requested (--techniques {t.name})")
     warnings.extend(runner.warnings)  # the stage cache's: damaged entries, a folder that took no entry
-    baked_scene = replace(split, meshes=tuple(b.meshes), images=tuple(b.images), textures=tuple(b.textures))
+    baked_scene = replace(split, meshes=tuple(b.meshes), images=tuple(b.images), textures=tuple(b.textures),
+                          materials=exported_materials(split.materials, outputs[1].stem))
     extras = {
         "scaleMmPerUnit": mm_per_unit,
         "scaleSource": scale_source,
@@ -319,9 +322,23 @@ def up_to_date_result(path: Path, options: BakeOptions, out_base: Path) -> BakeR
 
 
 def _outputs(out_base: Path, extra: dict) -> tuple[Path, ...]:
-    """The .glb, .usdc and .report.json, then the `extra` outputs' .glb files."""
-    return (out_base.with_suffix(".glb"), out_base.with_suffix(".usdc"), out_base.with_suffix(".report.json"),
-            *(out_base.with_suffix(f".{name}.glb") for name in extra))
+    """The .glb, .usdc, .report.json and the .usdc's OpenPBR MaterialX document (`materialx_file`),
+    then the `extra` outputs' .glb files, then the engine-native materials (`write_materials_json`)."""
+    usdc = out_base.with_suffix(".usdc")
+    return (out_base.with_suffix(".glb"), usdc, out_base.with_suffix(".report.json"),
+            usdc.with_name(materialx_file(usdc.stem)), *(out_base.with_suffix(f".{name}.glb") for name in extra),
+            out_base.with_suffix(".materials.json"))  # last: the indices above stay as they were
+
+
+def exported_materials(materials: tuple[SourceMaterial, ...], stem: str) -> tuple[SourceMaterial, ...]:
+    """`materials` as the outputs name them: ``<stem>_<name>``, `stem` the outputs' file stem.
+
+    Engines that share materials by name (Godot's import, a USD stage composing several assets) would
+    otherwise merge two assets' materials of one name (every ``sssbake_default``, two sources' ``Skin``),
+    and one asset would show the other's colour. Only the written names change: the config's rules,
+    the plan and the report use the source names.
+    """
+    return tuple(replace(m, name=f"{stem}_{m.name}") for m in materials)
 
 
 def _extra_outputs(options: BakeOptions) -> dict[str, Callable[[BakedAsset], BakedAsset]]:
@@ -638,14 +655,18 @@ def _write(b: _Baking, asset: BakedAsset, outputs: tuple[Path, ...], extra: dict
         summaries = {}
         with b.runner.timed("export_gltf"):
             summaries["glb"] = write_glb(asset, at[outputs[0]])
-        with b.runner.timed("export_usd"):
-            summaries["usdc"] = write_usdc(asset, at[outputs[1]])
+        with b.runner.timed("export_mtlx"):
+            summaries["mtlx"] = write_mtlx(asset, at[outputs[3]])
+        with b.runner.timed("export_usd"):  # after the .mtlx its Material prims name: USD's validation resolves it
+            summaries["usdc"] = write_usdc(asset, at[outputs[1]], outputs[3].name)
         textures = [Path(t).name for t in summaries["usdc"]["textures"]]
         summaries["usdc"]["textures"] = [str(folder / t) for t in textures]  # where they are moved
-        for (name, make), out in zip(extra.items(), outputs[3:]):
+        with b.runner.timed("export_materials_json"):
+            summaries["materials_json"] = write_materials_json(asset, at[outputs[-1]], outputs[0].stem)
+        for (name, make), out in zip(extra.items(), outputs[4:]):
             with b.runner.timed(f"export_{name}"):
                 summaries[f"{name}_glb"] = write_glb(make(asset), at[out])
-        glbs = {"gltf": at[outputs[0]], **{f"gltf_{name}": at[out] for name, out in zip(extra, outputs[3:])}}
+        glbs = {"gltf": at[outputs[0]], **{f"gltf_{name}": at[out] for name, out in zip(extra, outputs[4:])}}
         validation = _validate(b.runner, glbs, at[outputs[1]], b.options, b.warnings, path, len(b.scene.images))
         invalid = _invalid(validation)
         if invalid:
@@ -660,9 +681,9 @@ def _write(b: _Baking, asset: BakedAsset, outputs: tuple[Path, ...], extra: dict
         }
         with atomic_path(at[outputs[2]]) as tmp:
             Path(tmp).write_text(json.dumps(report, indent=1, default=json_default))
-        # the .usdc after the textures it references, the report (what says the set is up to date) last
-        commit(staged, [p.name for p in (outputs[0], *outputs[3:])] + textures + [outputs[1].name, outputs[2].name],
-               folder)
+        # the .usdc after the textures and the .mtlx it references, the report (what says the set is up to date) last
+        commit(staged, [p.name for p in (outputs[0], *outputs[4:])] + textures
+               + [outputs[3].name, outputs[1].name, outputs[2].name], folder)  # [4:] ends in .materials.json
     return report
 
 

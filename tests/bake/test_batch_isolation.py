@@ -96,7 +96,8 @@ def _files(out: Path) -> set[str]:
 
 
 def _good(out: Path, stem: str) -> set[str]:
-    return {f"{stem}.glb", f"{stem}.usdc", f"{stem}.thickness0.png", f"{stem}.report.json"}
+    return {f"{stem}.glb", f"{stem}.usdc", f"{stem}.mtlx", f"{stem}.materials.json", f"{stem}.thickness0.png",
+            f"{stem}.report.json"}
 
 
 @pytest.mark.parametrize("action, message", [

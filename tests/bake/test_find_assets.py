@@ -90,8 +90,9 @@ def test_hostile_tree_ends_with_one_line_per_problem_and_bakes_the_rest(tmp_path
     assert status == {"good.obj": "ok", "lib1/shelf.obj": "ok", **{name: "failed" for name in expected},
                       **{name: "same-file" for name in same}}
     files = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file() and ".sssbake-cache" not in p.parts)
-    assert files == [".sssbake.lock", "batch.json", "good.glb", "good.report.json", "good.thickness0.png", "good.usdc",
-                     "lib1/shelf.glb", "lib1/shelf.report.json", "lib1/shelf.thickness0.png", "lib1/shelf.usdc"]
+    assert files == [".sssbake.lock", "batch.json", "good.glb", "good.materials.json", "good.mtlx", "good.report.json",
+                     "good.thickness0.png", "good.usdc", "lib1/shelf.glb", "lib1/shelf.materials.json",
+                     "lib1/shelf.mtlx", "lib1/shelf.report.json", "lib1/shelf.thickness0.png", "lib1/shelf.usdc"]
 
 
 def test_one_real_file_is_one_job_under_its_first_name(tmp_path):

@@ -98,8 +98,8 @@ def test_full_disk_fails_the_assets_that_do_not_fit_and_leaves_no_part(tmp_path)
     assert len(err) == 2 and err[1].startswith("1 baked, 1 failed")
     lines = run.stdout.splitlines()
     assert lines[0] == "rc=1"
-    assert sorted(lines[1:]) == ["./.sssbake.lock", "./batch.json", "./small.glb", "./small.report.json",
-                                 "./small.thickness0.png", "./small.usdc"]
+    assert sorted(lines[1:]) == ["./.sssbake.lock", "./batch.json", "./small.glb", "./small.materials.json",
+                                 "./small.mtlx", "./small.report.json", "./small.thickness0.png", "./small.usdc"]
 
 
 # --- all or nothing: a failed asset leaves no outputs, a failed rebake leaves the old ones ---------------
@@ -143,9 +143,11 @@ def test_a_node_of_scale_0_is_left_out_and_an_asset_of_nothing_else_fails_alone(
     assert err[0] == (f"error: {flat}: every mesh is placed by a node of scale 0 (a singular transform): nothing has "
                       "volume to bake")
     assert len(err) == 2 and err[1].startswith("2 baked, 1 failed")
-    assert sorted(p.name for p in out.iterdir()) == [".sssbake.lock", "batch.json", "good.glb", "good.report.json",
+    assert sorted(p.name for p in out.iterdir()) == [".sssbake.lock", "batch.json", "good.glb",
+                                                      "good.materials.json", "good.mtlx", "good.report.json",
                                                       "good.thickness0.png", "good.usdc", "half.glb",
-                                                      "half.report.json", "half.thickness0.png", "half.usdc"]
+                                                      "half.materials.json", "half.mtlx", "half.report.json",
+                                                      "half.thickness0.png", "half.usdc"]
     assert not _left_behind(out)
     report = json.loads((out / "half.report.json").read_text())
     assert report["warnings"][:2] == ["node 'Flat' has scale 0 (a singular transform): what it places has no volume; "
@@ -192,15 +194,19 @@ def _rebake_failing(baked: Path, tmp_path: Path, monkeypatch, where: str, failur
 
 
 def test_a_failure_in_the_last_exporter_leaves_nothing_and_the_old_outputs_as_they_were(baked, tmp_path, monkeypatch):
-    def usdc_then_full(asset, path):
-        write_usdc(asset, path)  # the .glb, the .usdc and its texture all written: then the disk is full
-        assert {p.name for p in Path(path).parent.iterdir()} == {"ball.glb", "ball.usdc", "ball.thickness0.png"}
+    def usdc_then_full(asset, path, materialx):
+        # the .glb, the .mtlx, the .usdc and its texture all written (the engines' materials come after): then
+        # the disk is full
+        write_usdc(asset, path, materialx)
+        assert {p.name for p in Path(path).parent.iterdir()} == {"ball.glb", "ball.mtlx", "ball.usdc",
+                                                                 "ball.thickness0.png"}
         raise OSError(errno.ENOSPC, "No space left on device")
 
     before, after, message = _rebake_failing(baked, tmp_path, monkeypatch, "write_usdc", usdc_then_full)
     assert message == "[Errno 28] No space left on device"
     assert not list((tmp_path / "fresh").iterdir())
-    assert after == before and set(before) == {"ball.glb", "ball.usdc", "ball.thickness0.png", "ball.report.json"}
+    assert after == before and set(before) == {"ball.glb", "ball.mtlx", "ball.materials.json", "ball.usdc",
+                                                 "ball.thickness0.png", "ball.report.json"}
 
 
 def test_outputs_with_validation_errors_fail_the_bake_and_are_not_left(baked, tmp_path, monkeypatch):
@@ -277,7 +283,8 @@ def test_a_full_cache_folder_is_warned_of_and_the_bake_goes_on_without_it(tmp_pa
         rf"stage cache: \w+ and the stages after it not stored: {re.escape(str(cache))}: No space left on device; "
         r"free some space or give --cache-dir a folder on another disk, or --no-cache", full[0]), full
     assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == [
-        "batch.json", "small.glb", "small.report.json", "small.thickness0.png", "small.usdc"]
+        "batch.json", "small.glb", "small.materials.json", "small.mtlx", "small.report.json",
+        "small.thickness0.png", "small.usdc"]
 
 
 @dataclasses.dataclass(frozen=True)

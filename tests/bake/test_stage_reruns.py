@@ -110,7 +110,8 @@ def test_an_identical_rerun_is_up_to_date_and_rewrites_nothing(baseline):
     result = bake_asset(asset, BASE, out / "blob", StageCache(cache))
     assert result.up_to_date
     assert files() == before
-    assert {p.name for p in result.outputs} == {"blob.glb", "blob.usdc", "blob.report.json"}
+    assert {p.name for p in result.outputs} == {"blob.glb", "blob.mtlx", "blob.materials.json", "blob.usdc",
+                                                "blob.report.json"}
 
 
 # --- entries rewritten with a valid checksum around values their stage could not have made ------------

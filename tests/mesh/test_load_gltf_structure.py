@@ -30,7 +30,7 @@ from sssbake.pipeline.core.errors import AssetError
 from sssbake.pipeline.mesh.load import load_scene
 from sssbake.pipeline.mesh.load_gltf import MAX_JSON_DEPTH
 
-OUTPUT_SUFFIXES = (".glb", ".usdc", ".report.json", ".thickness0.png")
+OUTPUT_SUFFIXES = (".glb", ".usdc", ".mtlx", ".materials.json", ".report.json", ".thickness0.png")
 
 
 def _bake(src: Path, out: Path, capsys) -> tuple[int, list[str]]:

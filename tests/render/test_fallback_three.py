@@ -61,20 +61,26 @@ def baked(tmp_path_factory):
     return root / "out"
 
 
-def shoot(glb: Path, captured: dict, site: Path, base_url: str) -> tuple[np.ndarray, np.ndarray, list]:
-    """`glb` drawn by three.js as written and with transmission 0: two (SIZE, SIZE, 3) linear
-    radiances per unit irradiance, and the transmission factors it read."""
-    camera, light, exposure = captured["camera"], captured["light"], captured["exposure"]
+def page_config(glb: Path, captured: dict, size: int) -> dict:
+    """The ?config= JSON of the fallback pages (tests/js/fallback*.html): verify's camera, light
+    and exposure as `capture` below recorded them, for a `size`² view of `glb`."""
+    camera, light = captured["camera"], captured["light"]
     # verify's camera looks along fit_camera's default direction; its projection is then VP · V⁻¹.
     forward = np.asarray(inspect.signature(fit_camera).parameters["view_dir"].default, dtype=np.float64)
     view = _look_at(np.asarray(camera.eye), forward / np.linalg.norm(forward))
-    config = {
-        "glb": glb.name, "size": SIZE, "exposure": exposure,
+    return {
+        "glb": glb.name, "size": size, "exposure": captured["exposure"],
         "view": view.tolist(), "projection": (camera.view_projection @ np.linalg.inv(view)).tolist(),
         "light": (np.asarray(light.vector) / np.linalg.norm(light.vector)).tolist(),
     }
+
+
+def shoot(glb: Path, captured: dict, site: Path, base_url: str) -> tuple[np.ndarray, np.ndarray, list]:
+    """`glb` drawn by three.js as written and with transmission 0: two (SIZE, SIZE, 3) linear
+    radiances per unit irradiance, and the transmission factors it read."""
+    exposure = captured["exposure"]
     name = f"{glb.stem}.json"
-    (site / name).write_text(json.dumps(config))
+    (site / name).write_text(json.dumps(page_config(glb, captured, SIZE)))
     page = open_page(f"{base_url}fallback.html?config={name}", site / f"{glb.stem}.png", 2 * SIZE, SIZE)
     image = srgb_to_linear(page.image) / exposure
     return image[:, :SIZE], image[:, SIZE:], page.result["transmissions"]

@@ -1,6 +1,9 @@
 // Renders each job of ?jobs=URL with the three.js runtime and hands the linear images back
 // (window.sssbakeResult: per job {images: {mode: base64 float32 RGBA, row 0 at the bottom}} or
-// {error}); a load the plugin refuses is a job's result, not a page error.
+// {error}); a load the plugin refuses is a job's result, not a page error. A job's `options` go to
+// createRuntime; with `stock`, images.stock is the same file loaded by a GLTFLoader without the
+// plugin and drawn by three itself (MeshPhysicalMaterial, a DirectionalLight) into a float target
+// in the same page, renderer, camera and light.
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { SSSBakePlugin, createRuntime } from '/runtime_three/sssbake-three.js';
@@ -12,6 +15,24 @@ function base64(floats) {
   let text = '';
   for (let i = 0; i < bytes.length; i += 0x8000) text += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
   return btoa(text);
+}
+
+/** `url` as three alone draws it: linear float RGBA, row 0 at the bottom. */
+async function stock(renderer, url, camera, towardsLight, size) {
+  const gltf = await new GLTFLoader().loadAsync(url);
+  const sun = new THREE.DirectionalLight(0xffffff, 1);
+  sun.position.copy(towardsLight).normalize();
+  gltf.scene.add(sun, sun.target);
+  const target = new THREE.WebGLRenderTarget(size, size, { type: THREE.FloatType });
+  renderer.setRenderTarget(target);
+  renderer.setClearColor(0x000000, 0);
+  renderer.clear();
+  renderer.render(gltf.scene, camera);
+  const out = new Float32Array(size * size * 4);
+  renderer.readRenderTargetPixels(target, 0, 0, size, size, out);
+  renderer.setRenderTarget(null);
+  target.dispose();
+  return out;
 }
 
 async function run() {
@@ -30,7 +51,7 @@ async function run() {
       results.push({ error: error.message, kind: error.name });
       continue;
     }
-    const runtime = await createRuntime(renderer, gltf.scene, gltf, { shaderBase: SHADERS, srgb: false });
+    const runtime = await createRuntime(renderer, gltf.scene, gltf, { shaderBase: SHADERS, srgb: false, ...(job.options || {}) });
     const c = job.camera;
     const camera = new THREE.PerspectiveCamera(c.fov, 1, c.near, c.far);
     camera.position.set(...c.eye);
@@ -46,8 +67,9 @@ async function run() {
       images[mode] = base64(runtime.readLinear());
       ms[mode] = performance.now() - t;
     }
-    results.push({ techniques: runtime.techniques, images, ms });
     runtime.dispose();
+    if (job.stock) images.stock = base64(await stock(renderer, job.glb, camera, new THREE.Vector3(...job.light), size));
+    results.push({ techniques: runtime.techniques, images, ms });
   }
   window.sssbakeResult = results;
   window.sssbakeReady = true;
