@@ -251,7 +251,7 @@ def bake_asset(
     key = job_key(digest, options, picks)
     old = _up_to_date(outputs, key, path, options)
     if old is not None:
-        return BakeResult(old, outputs, up_to_date=True)
+        return BakeResult(old, outputs.paths, up_to_date=True)
 
     runner = StageRunner(cache, trace_memory)
     scene, clean, k_clean = _load(runner, path, digest, options)
@@ -281,7 +281,7 @@ def bake_asset(
                         else f"not requested (--techniques {t.name})")
     warnings.extend(runner.warnings)  # the stage cache's: damaged entries, a folder that took no entry
     baked_scene = replace(split, meshes=tuple(b.meshes), images=tuple(b.images), textures=tuple(b.textures),
-                          materials=exported_materials(split.materials, outputs[1].stem))
+                          materials=exported_materials(split.materials, outputs.usdc.stem))
     extras = {
         "scaleMmPerUnit": mm_per_unit,
         "scaleSource": scale_source,
@@ -296,7 +296,7 @@ def bake_asset(
         "dependencies": dict(scene.dependencies),
         "schema_version": SCHEMA_VERSION,
         "sssbake": version("sssbake"),
-        "outputs": [str(p) for p in outputs],
+        "outputs": [str(p) for p in outputs.paths],
         "scale_mm_per_unit": mm_per_unit,
         "scale_source": scale_source,
         "vertices": sum(len(p.positions) for m in baked_scene.meshes for p in m.primitives),
@@ -308,26 +308,55 @@ def bake_asset(
         "plan": [e.to_json() for e in b.plan],
         "lambert_checks": b.lambert_checks,
     }
-    return BakeResult(_write(b, asset, outputs, extra, head, path, t_start), outputs)
+    return BakeResult(_write(b, asset, outputs, extra, head, path, t_start), outputs.paths)
 
 
 def up_to_date_result(path: Path, options: BakeOptions, out_base: Path) -> BakeResult | None:
     """What `bake_asset` returns at once when the outputs of `path` under `options` (no budget
     picks) are up to date, else None: a batch checks it before it starts a worker."""
     outputs = _outputs(out_base, _extra_outputs(options))
-    if not all(p.exists() for p in outputs):
+    if not all(p.exists() for p in outputs.paths):
         return None
     old = _up_to_date(outputs, job_key(file_digest(path), options), Path(path), options)
-    return BakeResult(old, outputs, up_to_date=True) if old is not None else None
+    return BakeResult(old, outputs.paths, up_to_date=True) if old is not None else None
 
 
-def _outputs(out_base: Path, extra: dict) -> tuple[Path, ...]:
-    """The .glb, .usdc, .report.json and the .usdc's OpenPBR MaterialX document (`materialx_file`),
-    then the `extra` outputs' .glb files, then the engine-native materials (`write_materials_json`)."""
+@dataclass(frozen=True)
+class _Outputs:
+    """The files one asset's bake writes, each by what it is.
+
+    Attributes
+    ----------
+    glb, usdc, report : Path
+        ``<base>.glb``, ``<base>.usdc``, ``<base>.report.json``.
+    mtlx : Path
+        The .usdc's OpenPBR MaterialX document (`materialx_file`).
+    variants : dict of str to Path
+        ``<base>.<name>.glb`` per extra output of the techniques (`_extra_outputs`), in its order.
+    materials : Path
+        ``<base>.materials.json``, the engine-native materials (`write_materials_json`).
+    """
+
+    glb: Path
+    usdc: Path
+    report: Path
+    mtlx: Path
+    variants: dict[str, Path]
+    materials: Path
+
+    @property
+    def paths(self) -> tuple[Path, ...]:
+        """Every output, in the order the reports list them."""
+        return (self.glb, self.usdc, self.report, self.mtlx, *self.variants.values(), self.materials)
+
+
+def _outputs(out_base: Path, extra: dict) -> _Outputs:
+    """The outputs of a bake to `out_base` with the techniques' `extra` variants."""
     usdc = out_base.with_suffix(".usdc")
-    return (out_base.with_suffix(".glb"), usdc, out_base.with_suffix(".report.json"),
-            usdc.with_name(materialx_file(usdc.stem)), *(out_base.with_suffix(f".{name}.glb") for name in extra),
-            out_base.with_suffix(".materials.json"))  # last: the indices above stay as they were
+    return _Outputs(glb=out_base.with_suffix(".glb"), usdc=usdc, report=out_base.with_suffix(".report.json"),
+                    mtlx=usdc.with_name(materialx_file(usdc.stem)),
+                    variants={name: out_base.with_suffix(f".{name}.glb") for name in extra},
+                    materials=out_base.with_suffix(".materials.json"))
 
 
 def exported_materials(materials: tuple[SourceMaterial, ...], stem: str) -> tuple[SourceMaterial, ...]:
@@ -346,16 +375,16 @@ def _extra_outputs(options: BakeOptions) -> dict[str, Callable[[BakedAsset], Bak
     return {name: make for t in TECHNIQUES for name, make in t.extra_outputs(options.technique_options(t.name)).items()}
 
 
-def _up_to_date(outputs: tuple[Path, ...], key: str, path: Path, options: BakeOptions) -> dict | None:
+def _up_to_date(outputs: _Outputs, key: str, path: Path, options: BakeOptions) -> dict | None:
     """The old report when every output exists (the .usdc's thickness textures too), its `job_key` is
     `key`, its dependencies hold and its outputs have no validation errors of their own (a bake
     never leaves such outputs, `_write`; an older one did), nor skipped a validator that is there now."""
-    if not all(p.exists() for p in outputs):
+    if not all(p.exists() for p in outputs.paths):
         return None
     try:
-        old = json.loads(outputs[2].read_text())
+        old = json.loads(outputs.report.read_text())
         # by name beside the .usdc, as it references them: the folder may have moved
-        textures = [outputs[1].parent / Path(t).name for t in old["bytes"]["usdc"].get("textures", [])]
+        textures = [outputs.usdc.parent / Path(t).name for t in old["bytes"]["usdc"].get("textures", [])]
         if _invalid(old.get("validation", {})) or _validator_installed_since(old["validation"]):
             return None
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
@@ -643,31 +672,31 @@ def _materials_block(b: _Baking, assignment: Assignment, origin: list[int]) -> d
     }
 
 
-def _write(b: _Baking, asset: BakedAsset, outputs: tuple[Path, ...], extra: dict, head: dict, path: Path,
+def _write(b: _Baking, asset: BakedAsset, outputs: _Outputs, extra: dict, head: dict, path: Path,
            t_start: float) -> dict:
     """Export `asset` to `outputs` (`extra`'s variants after the report), validate them and write the
     report (`head`, then bytes, validation, stages, seconds and warnings), all in a staging folder
     (`staging`): moved into place, the report last, only once every file is written and none has
     validation errors of its own; when this raises, the output paths hold what they held before."""
-    folder = outputs[0].parent
+    folder = outputs.glb.parent
     with staging(folder) as staged:
-        at = {p: staged / p.name for p in outputs}
+        at = {p: staged / p.name for p in outputs.paths}
         summaries = {}
         with b.runner.timed("export_gltf"):
-            summaries["glb"] = write_glb(asset, at[outputs[0]])
+            summaries["glb"] = write_glb(asset, at[outputs.glb])
         with b.runner.timed("export_mtlx"):
-            summaries["mtlx"] = write_mtlx(asset, at[outputs[3]])
+            summaries["mtlx"] = write_mtlx(asset, at[outputs.mtlx])
         with b.runner.timed("export_usd"):  # after the .mtlx its Material prims name: USD's validation resolves it
-            summaries["usdc"] = write_usdc(asset, at[outputs[1]], outputs[3].name)
+            summaries["usdc"] = write_usdc(asset, at[outputs.usdc], outputs.mtlx.name)
         textures = [Path(t).name for t in summaries["usdc"]["textures"]]
         summaries["usdc"]["textures"] = [str(folder / t) for t in textures]  # where they are moved
         with b.runner.timed("export_materials_json"):
-            summaries["materials_json"] = write_materials_json(asset, at[outputs[-1]], outputs[0].stem)
-        for (name, make), out in zip(extra.items(), outputs[4:]):
+            summaries["materials_json"] = write_materials_json(asset, at[outputs.materials], outputs.glb.stem)
+        for name, make in extra.items():
             with b.runner.timed(f"export_{name}"):
-                summaries[f"{name}_glb"] = write_glb(make(asset), at[out])
-        glbs = {"gltf": at[outputs[0]], **{f"gltf_{name}": at[out] for name, out in zip(extra, outputs[4:])}}
-        validation = _validate(b.runner, glbs, at[outputs[1]], b.options, b.warnings, path, len(b.scene.images))
+                summaries[f"{name}_glb"] = write_glb(make(asset), at[outputs.variants[name]])
+        glbs = {"gltf": at[outputs.glb], **{f"gltf_{name}": at[out] for name, out in outputs.variants.items()}}
+        validation = _validate(b.runner, glbs, at[outputs.usdc], b.options, b.warnings, path, len(b.scene.images))
         invalid = _invalid(validation)
         if invalid:
             raise AssetError(path, f"exported files are invalid ({invalid.replace(str(staged), str(folder))})")
@@ -679,11 +708,11 @@ def _write(b: _Baking, asset: BakedAsset, outputs: tuple[Path, ...], extra: dict
             "seconds": round(time.perf_counter() - t_start, 4),
             "warnings": b.warnings,
         }
-        with atomic_path(at[outputs[2]]) as tmp:
+        with atomic_path(at[outputs.report]) as tmp:
             Path(tmp).write_text(json.dumps(report, indent=1, default=json_default))
         # the .usdc after the textures and the .mtlx it references, the report (what says the set is up to date) last
-        commit(staged, [p.name for p in (outputs[0], *outputs[4:])] + textures
-               + [outputs[3].name, outputs[1].name, outputs[2].name], folder)  # [4:] ends in .materials.json
+        commit(staged, [p.name for p in (outputs.glb, *outputs.variants.values(), outputs.materials)] + textures
+               + [outputs.mtlx.name, outputs.usdc.name, outputs.report.name], folder)
     return report
 
 
