@@ -730,13 +730,12 @@ def _table(array: np.ndarray, packer: _Packer, where: str, name: str) -> dict:
                          f"and n > 0, got {array.shape}")
     if array.dtype.kind == "f":
         check_finite(array, where)
-        stored, component = array.astype(np.float32), FLOAT
-    elif array.dtype in _TABLE_COMPONENTS:
-        stored, component = array, _TABLE_COMPONENTS[array.dtype]
-    elif array.dtype.kind in "iu" and (array.min() >= 0 and array.max() <= np.iinfo(np.uint32).max):
-        stored, component = array.astype(np.uint32), UNSIGNED_INT
-    else:
+    elif array.dtype.kind not in "iu" or (array.dtype not in _TABLE_COMPONENTS and not (
+            array.min() >= 0 and array.max() <= np.iinfo(np.uint32).max)):
         raise ValueError(f"{where}: a table must hold floats or integers in [0, 2^32), got dtype {array.dtype}")
+    dtype = table_dtype(array.dtype)
+    stored = array.astype(dtype, copy=False)
+    component = next(c for c, d in COMPONENT_DTYPES.items() if np.dtype(d) == dtype)
     index = packer.accessor(stored, component, False, "table", "tables", name=name)
     acc = packer.gltf.accessors[index]
     # The elements in glTF's order (MATk column-major), as a reader gets them back.
