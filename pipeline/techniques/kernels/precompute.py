@@ -19,8 +19,9 @@ Discretisation (float64 throughout, lengths in mm):
   simplified copy when the surface has more than ``global_vertices`` or more than F's byte budget
   allows (texel points located on it, `surface_locate`; each surface vertex then blends three of its
   vertices).
-- F's bytes (``f_bytes`` per surface vertex, `global_budget`): the global mesh gets at most as
-  many vertices as leave `ROW_ENTRIES` entries each, and each source keeps its strongest entries
+- F's bytes: F is whole where ``f_floor_mb`` MiB hold it (`whole_entries`: small meshes, as with
+  ``f_bytes`` 0); else ``f_bytes`` per surface vertex (`global_budget`): the global mesh gets at most
+  as many vertices as leave `ROW_ENTRIES` entries each, and each source keeps its strongest entries
   beyond the kernels' window within the budget, renormalised to send what its entries beyond the
   window sent (`throughput.strongest_per_source`); the blending below fits the kernels to that F.
 - Blending (``blend="optimised"``, `_blend`): w(s) per channel by least squares so that g matches T
@@ -124,6 +125,17 @@ def entries_per_source(surface_vertices: int, global_vertices: int, f_bytes: flo
         raise ValueError(f"kernels: F's budget of {f_bytes:g} B per vertex holds no entry for {global_vertices} global "
                          f"vertices over {surface_vertices}; raise --kernels-f-bytes")
     return keep
+
+
+def whole_entries(global_vertices: int, options: KernelsPrecomputeOptions) -> int:
+    """Entries of F, over `global_vertices`, that ``f_floor_mb`` holds whole (its fIndptr rows taken
+    out); 0 without a bound or a floor. The per-vertex bound only ever applies to an F larger than
+    this: on small meshes the entries it drops are the long-range ones that carry light through
+    the object."""
+    if not (options.f_bytes and options.f_floor_mb):
+        return 0
+    room = options.f_floor_mb * 2**20 - F_ROW_BYTES * (global_vertices + 1)
+    return max(0, int(room // f_entry_bytes(global_vertices)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -246,6 +258,7 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     throughput = throughput_matrix(g_pos * mm_per_unit, g_faces, g_normals, params, options.threshold,
                                    diagonal=options.blend == "none",
                                    per_source=entries_per_source(n_s, len(g_pos), options.f_bytes),
+                                   whole_entries=whole_entries(len(g_pos), options),
                                    beyond_mm=r * float(np.sqrt(np.median(area[:s_count]))) if correct_kernels else 0.0)
     seconds["throughput"] = time.perf_counter() - t
 

@@ -121,7 +121,7 @@ def throughput_values(field: NearField, table: ProfileTable, threshold: float, s
 
 def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, params: Profile,
                       threshold: float, diagonal: bool = False, max_entries: int = MAX_ENTRIES,
-                      per_source: int = 0, beyond_mm: float = 0.0) -> Throughput:
+                      per_source: int = 0, beyond_mm: float = 0.0, whole_entries: int = 0) -> Throughput:
     """All entries of F at or above `threshold` (see the module docstring).
 
     Parameters
@@ -143,6 +143,9 @@ def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.n
         With `per_source`: only entries whose receiver lies farther than this from the source are
         kept, and only their light is renormalised onto the kept ones (the kernels' window, where
         the blended kernels give the true response whatever F holds).
+    whole_entries : int
+        With `per_source`: F keeps all its entries, exactly as with `per_source` 0, where they number
+        at most this many (built whole where a sample of receivers predicts so); 0: never.
     """
     field = NearField.build(positions_mm, faces, normals, params)
     x, cell = field.positions, field.area
@@ -158,6 +161,12 @@ def throughput_matrix(positions_mm: np.ndarray, faces: np.ndarray, normals: np.n
     group = np.searchsorted(classes, cell)
     groups = [(np.flatnonzero(group == g), reach[g]) for g in range(len(reach)) if np.any(group == g)]
     trees = [(members, cKDTree(x[members]), r) for members, r in groups]
+    # the bound costs accuracy (light moved towards its source), so it applies only where F overflows
+    if per_source and whole_entries and _estimated_entries(x, trees, field, table, threshold,
+                                                           diagonal) <= whole_entries:
+        whole = throughput_matrix(positions_mm, faces, normals, params, threshold, diagonal, max_entries)
+        if whole.nnz <= whole_entries:
+            return whole
     # with a bound only candidates of each source's strongest entries are held (`_source_cuts`)
     cut = _source_cuts(x, field, table, threshold, diagonal, per_source, beyond_mm) if per_source else None
     estimate = 0.0 if per_source else _estimated_entries(x, trees, field, table, threshold, diagonal)

@@ -2,6 +2,8 @@
 plane gives the half-plane integral of Rd (better with the blending optimisation than without),
 no texel sends out more than R_d, and chart seams cost little with the border unfolded."""
 
+from dataclasses import fields
+
 import numpy as np
 import pytest
 from kernels_planes import flat_surface, plane_atlas, split_atlas
@@ -15,6 +17,7 @@ from sssbake.pipeline.techniques.kernels.precompute import (
     entries_per_source,
     global_budget,
     precompute_kernels,
+    whole_entries,
 )
 
 SKIN = preset("skin1")
@@ -153,7 +156,7 @@ def test_a_simplified_global_mesh_keeps_the_plane_at_rd(surface):
 def test_bounded_f_fits_its_bytes_and_keeps_what_each_texel_sends(surface, bakes):
     atlas = plane_atlas(surface, 180)
     pre = precompute_kernels(surface, atlas, [(surface.positions, surface.normals)], 1.0, SKIN,
-                             KernelsPrecomputeOptions())  # 64 B per vertex
+                             KernelsPrecomputeOptions(f_floor_mb=0))  # 64 B per vertex, no floor
     d, full = pre.data, bakes["optimised"].data
     assert kernels_bytes(d)["f"] <= 64 * len(surface.positions) < kernels_bytes(full)["f"] / 20
     assert d.vertex_count == len(surface.positions) and np.diff(d.f_indptr).mean() <= 4
@@ -181,12 +184,28 @@ def test_the_budget_sets_the_global_mesh_and_the_entries_per_source():
     # 64 · 50,000 bytes less 4 per fIndptr row, at 14 bytes an entry (uint16 sources)
     assert entries_per_source(50_000, 20_000, 64.0) == (64 * 50_000 - 4 * 20_001) // (14 * 20_000) == 11
     assert entries_per_source(50_000, 20_000, 0.0) == 0  # unbounded
+    # F whole where the 32 MiB floor holds it: its bytes less the fIndptr rows, at 14 bytes an entry
+    assert whole_entries(20_000, options) == (32 * 2**20 - 4 * 20_001) // 14
+    assert whole_entries(20_000, KernelsPrecomputeOptions(f_floor_mb=0)) == 0
+    assert whole_entries(20_000, KernelsPrecomputeOptions(f_bytes=0)) == 0  # unbounded: nothing to keep whole
     # 16 bytes a vertex hold no entry on the surface's own vertices: the budget coarsens the mesh
-    small = KernelsPrecomputeOptions(f_bytes=16, global_vertices=0)
+    small = KernelsPrecomputeOptions(f_bytes=16, global_vertices=0, f_floor_mb=0)
     assert global_budget(10_000, small) == int(16 * 10_000 / (4 * 14 + 4)) == 2666
     assert entries_per_source(10_000, 2666, 16.0) >= 1
     with pytest.raises(ValueError, match="--kernels-f-bytes"):
         entries_per_source(100, 100, 16.0)
+
+
+def test_the_floor_keeps_a_small_meshs_f_whole_as_unbounded(surface, bakes):
+    atlas = plane_atlas(surface, 180)
+    pre = precompute_kernels(surface, atlas, [(surface.positions, surface.normals)], 1.0, SKIN,
+                             KernelsPrecomputeOptions())  # 64 B per vertex, 32 MiB floor
+    whole = bakes["optimised"]  # f_bytes 0
+    assert kernels_bytes(whole.data)["f"] > 64 * len(surface.positions)  # the bound alone would cut F
+    for f in fields(pre.data):
+        a, b = getattr(pre.data, f.name), getattr(whole.data, f.name)
+        assert type(a) is type(b) and np.array_equal(a, b), f.name
+    assert pre.stats == whole.stats
 
 
 def test_kernel_weights_past_the_texture_limit_are_refused_before_the_precompute(surface, monkeypatch):
