@@ -17,7 +17,11 @@ Layout of the file (documented for readers in ``exporters/schema/sssbake.schema.
   and referenced by a table reference ``{"accessor", "name", "count", "type", "componentType",
   "crc32"}`` (`exporters/schema/SSSBAKE_subsurface.md`; `gltf_tables` resolves and checks them);
 - a texture slot's ``KHR_texture_transform`` (read from the source) is written back as it was,
-  listed in ``extensionsUsed``; images are copied byte for byte.
+  listed in ``extensionsUsed``; images are copied byte for byte;
+- on request (``volume_scatter``, the bake's ``--khr-materials-volume-scatter``), translucent materials
+  also get Khronos's draft `VOLUME_SCATTER`, and their ``KHR_materials_volume`` attenuation is then the
+  extinction σ'_t that draft defines instead of the fallback's σ_tr (`_volume_scatter`); listed in
+  ``extensionsUsed`` only.
 """
 
 from __future__ import annotations
@@ -68,6 +72,8 @@ COMPONENT_NAMES = {
 }
 #: The vendor extension that holds sssbake's data (root, meshes, materials).
 EXTENSION = "SSSBAKE_subsurface"
+#: Khronos's draft dense-scattering extension (glTF PR 2453), written only on request.
+VOLUME_SCATTER = "KHR_materials_volume_scatter"
 
 TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _VEC_TYPES = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
@@ -234,16 +240,23 @@ def table_crc32(elements: np.ndarray) -> str:
     return f"{zlib.crc32(packed.tobytes()):08x}"
 
 
-def to_glb(asset: BakedAsset) -> tuple[bytes, dict]:
+def to_glb(asset: BakedAsset, volume_scatter: dict[int, dict] | None = None) -> tuple[bytes, dict]:
     """Encode `asset` as GLB bytes: `glb_pieces` joined."""
-    pieces, summary = glb_pieces(asset)
+    pieces, summary = glb_pieces(asset, volume_scatter)
     return b"".join(pieces), summary
 
 
-def glb_pieces(asset: BakedAsset) -> tuple[list, dict]:
+def glb_pieces(asset: BakedAsset, volume_scatter: dict[int, dict] | None = None) -> tuple[list, dict]:
     """Encode `asset` as GLB, in pieces: the buffer views are the asset's own arrays where they
     are stored as they are (a bake's tables run to hundreds of MB: joined copies of them were
     the bake's memory peak).
+
+    Parameters
+    ----------
+    volume_scatter : dict or None
+        Scattering material index -> its `engine_materials.khr_materials_volume_scatter` record
+        (`materials_json.khr_volume_scatter` gives the asset's, as its ``.materials.json`` holds
+        them): those materials get `VOLUME_SCATTER` (`_volume_scatter`). None or empty: none does.
 
     Returns
     -------
@@ -280,9 +293,15 @@ def glb_pieces(asset: BakedAsset) -> tuple[list, dict]:
         gltf.textures.append(g.Texture(sampler=samplers[key], source=tex.image))
 
     check_material_references(asset)
+    volume_scatter = volume_scatter or {}
+    bare = sorted(set(volume_scatter) - set(asset.scattering))
+    if bare:
+        raise ValueError(f"{VOLUME_SCATTER} for materials {bare} that have no scattering material")
     used: set[str] = set()
     for m, src in enumerate(scene.materials):
         material, extensions = _material(src, asset.scattering.get(m))
+        if m in volume_scatter:
+            extensions = extensions + _volume_scatter(material, volume_scatter[m], f"material {src.name!r}")
         if m in asset.material_extras:
             if EXTENSION not in (material.extensions or {}):
                 raise ValueError(f"material {src.name!r} has technique data but no scattering material")
@@ -357,15 +376,17 @@ def glb_pieces(asset: BakedAsset) -> tuple[list, dict]:
     return pieces, summary
 
 
-def write_glb(asset: BakedAsset, path: str | os.PathLike) -> dict:
+def write_glb(asset: BakedAsset, path: str | os.PathLike, volume_scatter: dict[int, dict] | None = None) -> dict:
     """Write `asset` to `path` (.glb) atomically: on any error nothing is left behind.
+
+    `volume_scatter`: as `glb_pieces` takes it.
 
     Returns
     -------
     dict
         `to_glb`'s summary plus ``path``.
     """
-    pieces, summary = glb_pieces(asset)
+    pieces, summary = glb_pieces(asset, volume_scatter)
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         for piece in pieces:
             f.write(piece)
@@ -559,6 +580,11 @@ def _material(src: SourceMaterial, scattering: ScatteringMaterial | None) -> tup
             "material": {**scattering.material.to_json(), "units": "1/mm"},
             "sourceName": scattering.source_name,
         }
+        transmit = np.asarray(scattering.fallback.slab_transmittance, dtype=np.float64)
+        if np.any(transmit > 0):
+            # whole, where KHR_materials_diffuse_transmission carries it only in part (bake/fallback.py)
+            check_finite(transmit, f"material {src.name!r} slab_transmittance")
+            material.extensions[EXTENSION]["slabTransmittance"] = transmit.tolist()
         extensions = extensions + [EXTENSION]
     slots = (material.pbrMetallicRoughness.baseColorTexture, material.pbrMetallicRoughness.metallicRoughnessTexture,
              material.normalTexture, material.occlusionTexture, material.emissiveTexture)
@@ -623,6 +649,34 @@ def _material_json(src: SourceMaterial, scattering: ScatteringMaterial | None) -
         "KHR_materials_ior": {"ior": finite_number(fb.ior, f"{what} ior")},
     }
     return material, list(TRANSLUCENT_EXTENSIONS)
+
+
+def _volume_scatter(material: g.Material, record: dict, what: str) -> list[str]:
+    """Put `record` (`engine_materials.khr_materials_volume_scatter`) on the translucent `material`:
+    `VOLUME_SCATTER`'s ``multiscatterColor`` (also as ``multiscatterColorFactor``) and
+    ``scatterAnisotropy``, and its ``attenuationColor``
+    and ``attenuationDistance`` in place of the fallback's in ``KHR_materials_volume`` (thickness
+    kept). The draft reads that attenuation as the extinction σ_t = −ln(colour) / distance, which
+    only sssbake's σ'_t makes its medium sssbake's; a viewer without the draft reads it as absorption
+    (darker thin parts than the fallback's σ_tr). Returns the extension names it adds.
+    """
+    volume = material.extensions["KHR_materials_volume"]
+    colour = np.asarray(record["attenuationColor"], dtype=np.float64)
+    multiscatter = np.asarray(record["multiscatterColor"], dtype=np.float64)
+    check_finite(colour, f"{what} {VOLUME_SCATTER} attenuationColor")
+    check_finite(multiscatter, f"{what} {VOLUME_SCATTER} multiscatterColor")
+    volume["attenuationDistance"] = finite_number(record["attenuationDistance"],
+                                                  f"{what} {VOLUME_SCATTER} attenuationDistance")
+    volume["attenuationColor"] = colour.tolist()
+    # The draft's name for the colour is not settled: glTF-Transform (PR 2453) writes
+    # multiscatterColor, Babylon.js 9.28's loader reads multiscatterColorFactor (glTF's factor/texture
+    # naming) and takes black without it. Both carry the same values.
+    material.extensions[VOLUME_SCATTER] = {
+        "multiscatterColor": multiscatter.tolist(),
+        "multiscatterColorFactor": multiscatter.tolist(),
+        "scatterAnisotropy": finite_number(record["scatterAnisotropy"], f"{what} {VOLUME_SCATTER} scatterAnisotropy"),
+    }
+    return [VOLUME_SCATTER]
 
 
 def _asset_extras(asset: BakedAsset, packer: _Packer) -> dict:

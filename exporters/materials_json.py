@@ -7,6 +7,9 @@ the material's name as exported, under the asset's one scale (`usd.meters_per_un
     {"schema": 1, "asset": <stem>, "scaleMm": <mm per file unit>,
      "materials": {<name>: {"measured": {...}, "unreal": {...}, "unityHdrp": {...}, "godot4": {...},
                             "openpbr": {...}, "khrMaterialsVolumeScatter": {...}}}}
+
+`khr_volume_scatter` gives the ``khrMaterialsVolumeScatter`` records alone, by material index: what
+the .glb carries with ``--khr-materials-volume-scatter`` (`gltf.glb_pieces`), the same numbers.
 """
 
 from __future__ import annotations
@@ -17,15 +20,27 @@ from pathlib import Path
 
 from sssbake.exporters.atomic import atomic_path
 from sssbake.exporters.usd import meters_per_unit
-from sssbake.pipeline.core.engine_materials import engine_materials
+from sssbake.pipeline.core.engine_materials import engine_materials, khr_materials_volume_scatter
 from sssbake.pipeline.mesh.baked import BakedAsset
 
 SCHEMA = 1
 
 
+def mm_per_unit(asset: BakedAsset) -> float:
+    """Millimetres per file unit every record is written at: the .usdc's (`usd.meters_per_unit`)."""
+    return meters_per_unit(asset) * 1000.0
+
+
+def khr_volume_scatter(asset: BakedAsset) -> dict[int, dict]:
+    """Scattering material index -> its ``khrMaterialsVolumeScatter`` record, as `materials_document`
+    writes it (`engine_materials.khr_materials_volume_scatter` at `mm_per_unit`)."""
+    scale = mm_per_unit(asset)
+    return {m: khr_materials_volume_scatter(s.material, scale) for m, s in sorted(asset.scattering.items())}
+
+
 def materials_document(asset: BakedAsset, stem: str) -> dict:
     """The document for `asset` written as `stem` (see the module)."""
-    mm_per_unit = meters_per_unit(asset) * 1000.0
+    scale = mm_per_unit(asset)
     records = {}
     for m, scattering in sorted(asset.scattering.items()):
         name = asset.scene.materials[m].name or f"material{m}"
@@ -33,9 +48,9 @@ def materials_document(asset: BakedAsset, stem: str) -> dict:
             name = f"{name}#{m}"
         fb = scattering.fallback
         # the thickness texture holds thickness / thickness_factor (file units)
-        thickness_mm = fb.thickness_factor * mm_per_unit if fb.thickness_texture is not None else None
-        records[name] = engine_materials(scattering.material, mm_per_unit, thickness_mm)
-    return {"schema": SCHEMA, "asset": stem, "scaleMm": mm_per_unit, "materials": records}
+        thickness_mm = fb.thickness_factor * scale if fb.thickness_texture is not None else None
+        records[name] = engine_materials(scattering.material, scale, thickness_mm)
+    return {"schema": SCHEMA, "asset": stem, "scaleMm": scale, "materials": records}
 
 
 def write_materials_json(asset: BakedAsset, path: str | os.PathLike, stem: str) -> dict:

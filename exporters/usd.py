@@ -658,7 +658,8 @@ def _scattering_attributes(scattering: ScatteringMaterial, mm_per_unit: float, w
     standard-viewer fallback: ``sss:fallback:baseColor``, ``:attenuationColor``,
     ``:diffuseTransmissionColor`` (color3f), ``:thicknessFactor``, ``:attenuationDistance``
     (float, file units; omitted when infinite, i.e. no attenuation), ``:diffuseTransmissionFactor``,
-    ``:transmissionFactor``, ``:ior`` (float); and what an OpenPBR surface
+    ``:transmissionFactor``, ``:ior`` (float), ``:slabTransmittance`` (color3f, the slab transmittance
+    the diffuse transmission lobe carries in part, `bake.fallback.diffuse_transmission_share`); and what an OpenPBR surface
     (``ND_open_pbr_surface_surfaceshader``) would take, `engine_materials.openpbr_subsurface`:
     ``sss:openpbr:subsurfaceWeight`` (1), ``:subsurfaceColor`` (color3f, the medium's R_d),
     ``:subsurfaceRadius`` (float, file units: the largest reduced mean free path 1/σ'_t over RGB /
@@ -689,6 +690,8 @@ def _scattering_attributes(scattering: ScatteringMaterial, mm_per_unit: float, w
         (SSS + "fallback:transmissionFactor", _T.Float,
          finite_number(fb.transmission_factor, f"{what} transmission_factor")),
         (SSS + "fallback:ior", _T.Float, finite_number(fb.ior, f"{what} fallback ior")),
+        (SSS + "fallback:slabTransmittance", _T.Color3f,
+         Gf.Vec3f(*_vec3(fb.slab_transmittance, f"{what} slab_transmittance"))),
         (SSS + "openpbr:subsurfaceWeight", _T.Float, openpbr["subsurface_weight"]),
         (SSS + "openpbr:subsurfaceColor", _T.Color3f,
          Gf.Vec3f(*_vec3(openpbr["subsurface_color"], f"{what} subsurface color"))),

@@ -435,6 +435,11 @@ def build_parser(arguments: bool = True) -> argparse.ArgumentParser:
                         "auto: the planner chooses per mesh and material, with a reason in the report; none: "
                         f"the fallback only (default {','.join(BAKE_DEFAULTS.techniques) or 'none'})")
     _profile_argument(b)
+    # store_true with default None: an absent flag leaves the config's value alone
+    b.add_argument("--khr-materials-volume-scatter", action="store_true", default=None,
+                   help="also write KHR_materials_volume_scatter, a Khronos draft extension, on each translucent "
+                        "material of the .glb, with the volume attenuation as the extinction it defines "
+                        "(docs/engines.md); off by default")
     _technique_arguments(b)
     b.add_argument("--report", action="store_true",
                    help="also write OUT/report.html: each technique verified against the reference, with pictures")

@@ -68,6 +68,7 @@ class _General:
     validate: bool = True
     techniques: tuple[str, ...] = ("auto",)
     profile: str = DEFAULT_PROFILE
+    khr_materials_volume_scatter: bool = False
 
 
 @dataclass(frozen=True)
@@ -113,6 +114,11 @@ class _BakeOptions:
         The diffusion profile every material is evaluated with (`materials.PROFILE_MODELS`):
         ``"montecarlo"`` (the default) matches a Monte Carlo random walk; ``"dipole"`` is the
         classical dipole of Jensen et al. 2001, to reproduce the papers.
+    khr_materials_volume_scatter : bool
+        Also write Khronos's draft ``KHR_materials_volume_scatter`` on each translucent material of
+        the .glb, with the ``KHR_materials_volume`` attenuation it redefines as the extinction σ'_t
+        instead of the fallback's σ_tr (`gltf.glb_pieces`). Off by default: the extension is a
+        draft, and viewers without it read the σ'_t attenuation as plain absorption.
     <technique>_<field>
         Each registered technique's options (``techniques/<technique>/options.py``), e.g.
         ``prt_directions``; `technique_options` gives them as the technique's dataclass.

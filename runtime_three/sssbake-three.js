@@ -429,28 +429,25 @@ function surfaceMaps(material, geometry) {
 }
 
 /** screen_surface.frag's transmission (SSS_TRANSMISSION) from glTF material `def` (JSON) of a
- * primitive with baked thickness `thickness` (mm per vertex, component 0), file unit `scaleMm` mm,
- * or null where the file's fallback transmits nothing. The fallback (pipeline/bake/fallback.py
- * make_fallback) writes the slab transmittance at the median thickness d as the diffuse
- * transmission lobe, T(d) = (1 - transmissionFactor) diffuseTransmissionFactor
- * diffuseTransmissionColorFactor, and the diffusion extinction as the volume's attenuation,
- * attenuationColor = e^(-sigma_tr attenuationDistance) (file units); d is the median of the
- * thickness the file carries (the bake's is over welded vertices: seam copies aside, the same). */
-function transmissionUniforms(def, thickness, scaleMm) {
-  const ext = (def && def.extensions) || {};
-  const diffuse = ext.KHR_materials_diffuse_transmission;
-  if (!diffuse || !thickness || !(diffuse.diffuseTransmissionFactor > 0)) return null;
-  const keep = 1 - ((ext.KHR_materials_transmission || {}).transmissionFactor || 0);
-  const colour = diffuse.diffuseTransmissionColorFactor || [1, 1, 1];
-  const volume = ext.KHR_materials_volume || {};
-  const attenuation = volume.attenuationColor || [1, 1, 1];
-  const distanceMm = (volume.attenuationDistance === undefined ? Infinity : volume.attenuationDistance) * scaleMm;
+ * primitive with baked thickness `thickness` (mm per vertex, component 0), or null where the file
+ * transmits nothing. The bake (pipeline/bake/fallback.py make_fallback) writes the slab
+ * transmittance T(d) at the median thickness d into its own extension, `slabTransmittance`, whole:
+ * KHR_materials_diffuse_transmission carries it only in part, and KHR_materials_volume's
+ * attenuation is the draft scatter extension's extinction when that is on. The diffusion
+ * extinction comes from the medium, sigma_tr = sqrt(3 sigma_a (sigma_a + sigma_s')) per mm; d is
+ * the median of the thickness the file carries (the bake's is over welded vertices: seam copies
+ * aside, the same). */
+function transmissionUniforms(def, thickness) {
+  const sss = ((def && def.extensions) || {})[EXTENSION] || {};
+  const transmit = sss.slabTransmittance;
+  if (!transmit || !thickness || !transmit.some((c) => c > 0) || !sss.material) return null;
+  const { sigma_a: absorb, sigma_s_prime: scatter } = sss.material;
   const values = Float32Array.from({ length: thickness.count }, (_, i) => thickness.getX(i)).sort();
   const half = values.length >> 1;
   const median = values.length % 2 ? values[half] : 0.5 * (values[half - 1] + values[half]);
   return {
-    u_transmittance: { value: new THREE.Vector3(...colour.map((c) => keep * diffuse.diffuseTransmissionFactor * c)) },
-    u_sigma_tr: { value: new THREE.Vector3(...attenuation.map((c) => (c > 0 ? -Math.log(c) / distanceMm : 0))) },
+    u_transmittance: { value: new THREE.Vector3(...transmit) },
+    u_sigma_tr: { value: new THREE.Vector3(...absorb.map((a, c) => Math.sqrt(3 * a * (a + scatter[c])))) },
     u_median_mm: { value: median },
   };
 }
@@ -617,7 +614,7 @@ export async function createRuntime(renderer, scene, gltf, options = {}) {
       item.screen = screenPasses(mesh, t.screen, data.scaleMm, plainGeometry, plainVert, gbuffer, maps.uniforms);
       const primitive = json.meshes && json.meshes[data.mesh].primitives[data.primitive];
       const through = settings.screen.transmission && primitive
-        ? transmissionUniforms(json.materials[primitive.material], attrs[thicknessName], data.scaleMm) : null;
+        ? transmissionUniforms(json.materials[primitive.material], attrs[thicknessName]) : null;
       const defines = maps.defines + (through ? '#define SSS_TRANSMISSION\n' : '');
       const [vertex, fragment] = await Promise.all([library.source('plain.vert', defines), library.source('screen_surface.frag', defines)]);
       item.geometries.screen = through ? programGeometry(mesh.geometry, vertex, { ...sources, in_thickness: attrs[thicknessName] }) : plainGeometry;

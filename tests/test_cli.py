@@ -165,6 +165,16 @@ print('numpy' in sys.modules, 'sssbake.pipeline.techniques.registry' in sys.modu
     assert "inspect" in done.stdout and done.stdout.split()[-2:] == ["False", "False"]
 
 
+def test_khr_materials_volume_scatter_flag_sets_the_option():
+    from sssbake.pipeline.cli import _overrides, build_parser
+
+    args = ["bake", "a.obj", "-o", "out"]
+    assert _overrides(build_parser().parse_args([*args, "--khr-materials-volume-scatter"])) == {
+        "khr_materials_volume_scatter": True}
+    # absent: the config's value stands
+    assert "khr_materials_volume_scatter" not in _overrides(build_parser().parse_args(args))
+
+
 @pytest.mark.parametrize("command", ["bake", "plan", "tradeoff"])
 def test_command_help_imports_no_numerical_stack(command):
     """A command's ``--help`` builds its flags from the techniques' entries and options modules

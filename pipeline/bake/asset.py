@@ -22,7 +22,7 @@ from PIL import Image as PILImage
 
 from sssbake.exporters.atomic import atomic_path
 from sssbake.exporters.gltf import write_glb
-from sssbake.exporters.materials_json import write_materials_json
+from sssbake.exporters.materials_json import khr_volume_scatter, write_materials_json
 from sssbake.exporters.mtlx import write_mtlx
 from sssbake.exporters.usd import materialx_file, write_usdc
 from sssbake.pipeline.bake.cache import StageCache, stage_key
@@ -59,7 +59,7 @@ from sssbake.pipeline.techniques.registry import TECHNIQUES
 from sssbake.pipeline.techniques.technique import MATERIAL, MESH, Budget, TechniqueBake
 
 # Bump a stage's version when its output for the same input changes (a technique's: its `stage_version`).
-STAGE_VERSIONS = {"load": 4, "clean": 3, "atlas": 6, "thickness": 2, "thickness_map": 4, "escape_gain": 3,
+STAGE_VERSIONS = {"load": 5, "clean": 3, "atlas": 6, "thickness": 2, "thickness_map": 4, "escape_gain": 3,
                   **{t.name: t.stage_version for t in TECHNIQUES}, "pilot": 5}
 
 LINEAR, CLAMP_TO_EDGE = 9729, 33071
@@ -280,8 +280,11 @@ def bake_asset(
             runner.skip(t.name, "the plan chose it for no object (--techniques auto)" if b.auto
                         else f"not requested (--techniques {t.name})")
     warnings.extend(runner.warnings)  # the stage cache's: damaged entries, a folder that took no entry
+    # the unit the bake read the file in, also where --scale-mm overrode the file's own (the .usdc's
+    # metersPerUnit and the engine materials' lengths follow it, as the fallback's do)
     baked_scene = replace(split, meshes=tuple(b.meshes), images=tuple(b.images), textures=tuple(b.textures),
-                          materials=exported_materials(split.materials, outputs.usdc.stem))
+                          materials=exported_materials(split.materials, outputs.usdc.stem),
+                          meters_per_unit=mm_per_unit / 1000.0)
     extras = {
         "scaleMmPerUnit": mm_per_unit,
         "scaleSource": scale_source,
@@ -682,8 +685,10 @@ def _write(b: _Baking, asset: BakedAsset, outputs: _Outputs, extra: dict, head: 
     with staging(folder) as staged:
         at = {p: staged / p.name for p in outputs.paths}
         summaries = {}
+        # the draft extension's numbers are the .materials.json's, computed the same way
+        scatter = khr_volume_scatter(asset) if b.options.khr_materials_volume_scatter else None
         with b.runner.timed("export_gltf"):
-            summaries["glb"] = write_glb(asset, at[outputs.glb])
+            summaries["glb"] = write_glb(asset, at[outputs.glb], scatter)
         with b.runner.timed("export_mtlx"):
             summaries["mtlx"] = write_mtlx(asset, at[outputs.mtlx])
         with b.runner.timed("export_usd"):  # after the .mtlx its Material prims name: USD's validation resolves it
@@ -694,7 +699,7 @@ def _write(b: _Baking, asset: BakedAsset, outputs: _Outputs, extra: dict, head: 
             summaries["materials_json"] = write_materials_json(asset, at[outputs.materials], outputs.glb.stem)
         for name, make in extra.items():
             with b.runner.timed(f"export_{name}"):
-                summaries[f"{name}_glb"] = write_glb(make(asset), at[outputs.variants[name]])
+                summaries[f"{name}_glb"] = write_glb(make(asset), at[outputs.variants[name]], scatter)
         glbs = {"gltf": at[outputs.glb], **{f"gltf_{name}": at[out] for name, out in outputs.variants.items()}}
         validation = _validate(b.runner, glbs, at[outputs.usdc], b.options, b.warnings, path, len(b.scene.images))
         invalid = _invalid(validation)

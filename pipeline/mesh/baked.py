@@ -12,7 +12,7 @@ import numpy as np
 from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.mesh.scene import Scene, TextureRef
 
-SCHEMA_VERSION = "2.0.0"
+SCHEMA_VERSION = "2.1.0"
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,6 +77,10 @@ class Fallback:
     transmission_factor : float in [0, 1]
         KHR_materials_transmission's factor: the share of the light the object transmits
         rather than reflects diffusely (0: opaque).
+    slab_transmittance : (3,) float in [0, 1]
+        Total diffuse transmittance T of a slab of the median thickness, which the diffuse
+        transmission lobe carries only in part (`bake.fallback.diffuse_transmission_share`);
+        zeros when nothing is transmitted.
     """
 
     base_color: tuple[float, float, float]
@@ -88,6 +92,7 @@ class Fallback:
     diffuse_transmission_color: tuple[float, float, float]
     ior: float
     transmission_factor: float = 0.0
+    slab_transmittance: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)

@@ -63,7 +63,8 @@ INSTANCING = "EXT_mesh_gpu_instancing"
 #: GPU instancing (one node per instance), quantized attributes (any component type is read) and the
 #: material extensions it reads. A file requiring any other is refused: it cannot be read right without.
 SUPPORTED_REQUIRED = frozenset({DRACO, TEXTURE_TRANSFORM, INSTANCING, "KHR_mesh_quantization", "KHR_materials_ior",
-                                "KHR_materials_volume", "KHR_materials_diffuse_transmission"})
+                                "KHR_materials_volume", "KHR_materials_diffuse_transmission",
+                                "KHR_materials_volume_scatter"})
 #: How to turn a file that requires an unsupported compression into one sssbake reads.
 DECOMPRESS = {
     "EXT_meshopt_compression": "gltfpack -i in.glb -o out.glb -noq",
@@ -1004,11 +1005,29 @@ def _material(doc: _Document, m: GltfObject, i: int) -> SourceMaterial:
         emissive_texture=_texture_ref(doc, m.emissiveTexture, "emissive"),
         double_sided=bool(m.doubleSided),
         ior=None if ior is None else float(ior.get("ior", 1.5)),
-        volume=dict(ext["KHR_materials_volume"]) if "KHR_materials_volume" in ext else None,
-        diffuse_transmission=(
-            dict(ext["KHR_materials_diffuse_transmission"]) if "KHR_materials_diffuse_transmission" in ext else None
-        ),
+        volume=_material_extension(doc, ext, "KHR_materials_volume", i),
+        diffuse_transmission=_material_extension(doc, ext, "KHR_materials_diffuse_transmission", i),
+        volume_scatter=_material_extension(doc, ext, "KHR_materials_volume_scatter", i),
     )
+
+
+def _material_extension(doc: _Document, ext: dict, name: str, i: int) -> dict | None:
+    """Material `i`'s extension object `name` (None when absent) as plain dicts and lists (`_plain`)."""
+    if name not in ext:
+        return None
+    if not isinstance(ext[name], dict):
+        raise AssetError(doc.path, f"material {i}: {name} is {_brief(ext[name])}, not an object")
+    return _plain(ext[name])
+
+
+def _plain(value):
+    """JSON as plain dicts and lists: the scene goes into the stage cache, which stores no
+    `GltfObject` (a volume's ``thicknessTexture`` is one)."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_plain(v) for v in value]
+    return value
 
 
 def _textures_and_images(doc: _Document) -> tuple[tuple[Texture, ...], tuple[Image, ...]]:

@@ -95,9 +95,9 @@ class TextureRef:
 class SourceMaterial:
     """A surface material as authored (glTF metallic-roughness terms).
 
-    `volume` and `diffuse_transmission` hold the KHR_materials_volume /
-    KHR_materials_diffuse_transmission JSON objects of the input when present, so the
-    material stage can map them to scattering parameters.
+    `volume`, `diffuse_transmission` and `volume_scatter` hold the KHR_materials_volume /
+    KHR_materials_diffuse_transmission / KHR_materials_volume_scatter (Khronos draft) JSON
+    objects of the input when present, so the material stage can map them to scattering parameters.
     """
 
     name: str
@@ -114,6 +114,7 @@ class SourceMaterial:
     ior: float | None = None
     volume: dict | None = None
     diffuse_transmission: dict | None = None
+    volume_scatter: dict | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -7,8 +7,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from sssbake.pipeline.core.engine_materials import single_scatter_albedo
 from sssbake.pipeline.core.profile import total_for_albedo
-from sssbake.pipeline.core.materials import DEFAULT_PROFILE, Material, material_from_spec
+from sssbake.pipeline.core.materials import (
+    COEFFICIENT,
+    DEFAULT_PROFILE,
+    EXTINCTION,
+    Material,
+    MaterialError,
+    material_from_spec,
+)
 from sssbake.pipeline.mesh.scene import Scene, SourceMaterial
 from sssbake.pipeline.options import OPAQUE, BakeOptions
 
@@ -64,12 +72,71 @@ def material_from_khr_volume(src: SourceMaterial, mm_per_unit: float, profile: s
     return Material(f"{src.name} (KHR_materials_volume)", alpha * st, (1.0 - alpha) * st, eta, profile)
 
 
+def _numbers(value, count: int, what: str, src: SourceMaterial) -> np.ndarray:
+    """`value` as `count` finite float64 numbers; MaterialError naming `src` and `what` otherwise."""
+    try:
+        out = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        out = np.empty(0)
+    if out.size != count or not np.all(np.isfinite(out)):
+        raise MaterialError(f"material {src.name!r}: {what} must be {count} finite number(s), got {value!r}")
+    return out
+
+
+def material_from_khr_volume_scatter(src: SourceMaterial, mm_per_unit: float,
+                                     profile: str = DEFAULT_PROFILE) -> Material | None:
+    """Scattering parameters from the draft KHR_materials_volume_scatter and the volume attenuation.
+
+    The draft reads KHR_materials_volume's attenuation as the extinction σ_t = −ln(c)/d per channel,
+    ``multiscatterColorFactor`` (or ``multiscatterColor``) as the single-scatter albedo ρ_ss = σ_s/σ_t through its fit
+    (`engine_materials.single_scatter_albedo`) and ``scatterAnisotropy`` as the Henyey-Greenstein g;
+    sssbake's reduced coefficients follow by the similarity relation: σ_a = (1 − ρ_ss) σ_t,
+    σ'_s = (1 − g) ρ_ss σ_t. This inverts what `engine_materials.khr_materials_volume_scatter`
+    writes (g = 0, σ_t = σ'_t) exactly; η is KHR_materials_ior's (glTF's default 1.5).
+
+    A channel the file gives no extinction (colour 1) or an infinite one (colour 0) is held at the
+    least extinction (`materials.EXTINCTION`) or the largest coefficient (`materials.COEFFICIENT`)
+    sssbake bakes. Returns None when the volume has no attenuation distance > 0 (the draft's medium
+    then never interacts).
+
+    Raises
+    ------
+    MaterialError
+        A property that is not numbers of the draft's count, or coefficients no material may have.
+    """
+    vol = src.volume or {}
+    scatter = src.volume_scatter or {}
+    if vol.get("attenuationDistance") is None:
+        return None
+    dist = float(_numbers(vol["attenuationDistance"], 1, "KHR_materials_volume attenuationDistance", src)[0])
+    if dist <= 0:
+        return None
+    colour = np.clip(_numbers(vol.get("attenuationColor", [1.0, 1.0, 1.0]), 3,
+                              "KHR_materials_volume attenuationColor", src), 0.0, 1.0)
+    # the draft's two spellings (exporters/gltf.py writes both): Babylon.js' Factor first
+    key = "multiscatterColorFactor" if "multiscatterColorFactor" in scatter else "multiscatterColor"
+    multiscatter = np.clip(_numbers(scatter.get(key, [0.0, 0.0, 0.0]), 3,
+                                    f"KHR_materials_volume_scatter {key}", src), 0.0, 1.0)
+    g = float(_numbers(scatter.get("scatterAnisotropy", 0.0), 1, "KHR_materials_volume_scatter scatterAnisotropy",
+                       src)[0])
+    with np.errstate(divide="ignore"):  # colour 0: an infinite extinction, clipped below
+        sigma_t = np.clip(-np.log(colour) / (dist * mm_per_unit), EXTINCTION.low, COEFFICIENT.high)  # 1/mm
+    rho = single_scatter_albedo(multiscatter)
+    eta = float(src.ior or 1.5)
+    return Material(f"{src.name} (KHR_materials_volume_scatter)", (1.0 - g) * rho * sigma_t, (1.0 - rho) * sigma_t,
+                    eta, profile)
+
+
 def assign_materials(scene: Scene, options: BakeOptions, mm_per_unit: float) -> Assignment:
     """Decide each material's scattering parameters.
 
     Order: the first ``options.materials`` pattern matching the material's name; else the
-    material's own KHR_materials_volume attenuation; else ``options.material``. Primitives with
-    no material get a new one named ``sssbake_default`` with ``options.material``.
+    material's own draft KHR_materials_volume_scatter with its KHR_materials_volume attenuation
+    (`material_from_khr_volume_scatter`); else its KHR_materials_volume attenuation read as
+    sssbake's fallback writes it (`material_from_khr_volume`); else ``options.material``. An
+    sssbake output's ``SSSBAKE_subsurface`` material is not read: a re-bake takes the glTF
+    extensions, as any other viewer does. Primitives with no material get a new one named
+    ``sssbake_default`` with ``options.material``.
 
     Raises
     ------
@@ -94,6 +161,12 @@ def assign_materials(scene: Scene, options: BakeOptions, mm_per_unit: float) -> 
         if rule is not None:
             out[i] = _spec_material(rule[1], src.name, options.profile)
             reasons[i] = f"material name matches rule {rule[0]!r}"
+            continue
+        khr = (material_from_khr_volume_scatter(src, mm_per_unit, options.profile)
+               if src.volume and src.volume_scatter is not None else None)
+        if khr is not None:
+            out[i] = khr
+            reasons[i] = "from the input's KHR_materials_volume_scatter (draft) and KHR_materials_volume attenuation"
             continue
         khr = material_from_khr_volume(src, mm_per_unit, options.profile) if src.volume else None
         if khr is not None:

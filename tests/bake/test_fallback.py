@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from sssbake.pipeline.bake.batch import run_batch
-from sssbake.pipeline.bake.fallback import make_fallback, slab_totals
+from sssbake.pipeline.bake.fallback import diffuse_transmission_share, make_fallback, slab_totals
 from sssbake.pipeline.config import load_config
 from sssbake.pipeline.core.profile import classical_dipole, profile_for, total_reflectance
 from sssbake.pipeline.core.materials import Material, preset
@@ -84,11 +84,42 @@ def test_fallback_matches_physics():
     assert fb.transmission_factor == pytest.approx(1 - rd @ r / (rd @ rd), rel=1e-12)
     ts = np.linspace(0, 1, 2001)
     assert abs(ts[np.argmin([np.sum(((1 - x) * rd - r) ** 2) for x in ts])] - fb.transmission_factor) < 1e-3
-    # the diffuse lobe carries the slab's transmittance
-    lobe = fb.diffuse_transmission_factor * np.asarray(fb.diffuse_transmission_color)
-    np.testing.assert_allclose((1 - fb.transmission_factor) * lobe, t, rtol=1e-9)
+    # the slab's transmittance is carried whole for sssbake's runtime, the diffuse lobe the share
+    # `diffuse_transmission_share` picks: min(T, (1 - t) f) per channel
+    np.testing.assert_allclose(fb.slab_transmittance, t, rtol=1e-12)
+    keep, f = 1 - fb.transmission_factor, fb.diffuse_transmission_factor
+    np.testing.assert_allclose(keep * f * np.asarray(fb.diffuse_transmission_color), np.minimum(t, keep * f),
+                               rtol=1e-12)
     no_abs = make_fallback(preset("spectralon"), 1.0, np.array([1.0]), None, 1.0)
     assert all(np.isfinite(no_abs.attenuation_color)) and np.isfinite(no_abs.attenuation_distance)
+
+
+def stops_error(f: float, transmit: np.ndarray, keep: float) -> float:
+    """J(f) of `diffuse_transmission_share`, written out independently: per channel, the lit side
+    a diffuse-transmission viewer shows over three.js' (1 - f) and the far side's keep·f·c over T
+    with c ≤ 1, each in stops, squared and summed."""
+    lit = np.full(3, np.log(1 - f))
+    far = np.log(np.minimum(keep * f, transmit[transmit > 0]) / transmit[transmit > 0])
+    return float(np.sum(lit ** 2) + np.sum(far ** 2))
+
+
+def test_diffuse_transmission_share_minimises_the_error_in_stops():
+    grid = np.linspace(1e-4, 1 - 1e-4, 20001)
+    cases = [(np.array([0.531, 0.304, 0.098]), 0.769), (np.array([0.242, 0.443, 0.317]), 0.812),
+             (np.array([0.9, 0.0, 0.0]), 1.0), (np.array([1e-6, 1e-6, 1e-6]), 0.5), (np.array([1.0, 1.0, 1.0]), 1.0)]
+    for transmit, keep in cases:
+        f, c = diffuse_transmission_share(transmit, keep)
+        best = grid[np.argmin([stops_error(x, transmit, keep) for x in grid])]
+        assert abs(f - best) < 1e-4, (transmit, keep, f, best)
+        assert stops_error(f, transmit, keep) <= min(stops_error(f + e, transmit, keep) for e in (-1e-6, 1e-6))
+        assert np.all((0 <= c) & (c <= 1)) and 0 < f < 1
+        np.testing.assert_allclose(keep * f * c, np.minimum(transmit, keep * f), rtol=1e-12)
+    # 2 mm of skin1 (the docstring's figures): the lit side keeps 0.64, red's far side 0.52 of T
+    f, _ = diffuse_transmission_share(np.array([0.531, 0.304, 0.098]), 0.769)
+    assert f == pytest.approx(0.359, abs=1e-3) and 0.769 * f / 0.531 == pytest.approx(0.52, abs=0.01)
+    # nothing to carry, or nothing kept: no lobe
+    assert diffuse_transmission_share(np.zeros(3), 0.8)[0] == 0.0
+    assert diffuse_transmission_share(np.full(3, 0.5), 0.0)[0] == 0.0
 
 
 def test_transmission_follows_thickness_not_units():

@@ -167,3 +167,29 @@ def test_a_bake_writes_the_materials_json(tmp_path):
     assert record == expected
     assert record["measured"]["sigmaSPrimePerMm"] == list(marble.sigma_s_prime)
     assert 15.0 < record["unityHdrp"]["thicknessRemapMm"][1] <= 20.0 + 1e-9  # the 20 mm sphere's thickest chord
+
+
+def test_a_given_scale_overrides_the_files_unit_everywhere(tmp_path):
+    """samples/candle.glb (glTF: metres) baked with scale_mm = 10: the mesh's scale, the .usdc's
+    metersPerUnit and the materials JSON's lengths all take the given 10 mm per unit (the file's 1 m
+    per unit in the .usdc and the JSON, beside 10 mm in the .glb, was a contradiction)."""
+    from pathlib import Path
+
+    from pxr import Usd, UsdGeom
+
+    from sssbake.pipeline.bake.asset import bake_asset
+    from sssbake.pipeline.bake.cache import StageCache
+    from sssbake.pipeline.options import BakeOptions
+
+    sample = Path(__file__).resolve().parents[2] / "samples" / "candle.glb"
+    options = BakeOptions(scale_mm=10.0, techniques=(), validate=False, atlas_resolution=64)
+    (tmp_path / "out").mkdir()
+    bake_asset(sample, options, tmp_path / "out" / "candle", StageCache(tmp_path / "cache"))
+    doc = json.loads((tmp_path / "out" / "candle.materials.json").read_text())
+    assert doc["scaleMm"] == 10.0
+    stage = Usd.Stage.Open(str(tmp_path / "out" / "candle.usdc"))
+    assert UsdGeom.GetStageMetersPerUnit(stage) == pytest.approx(0.01, rel=1e-12)
+    for record in doc["materials"].values():
+        mfp = np.asarray(record["measured"]["meanFreePathMm"])
+        # OpenPBR's radius is the longest mean free path in file units: mm / 10
+        assert record["openpbr"]["subsurface_radius"] == pytest.approx(mfp.max() / 10.0, rel=1e-9)

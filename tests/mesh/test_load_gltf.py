@@ -165,6 +165,29 @@ def _write(path: Path, gltf: dict, blob: bytes) -> Path:
     return path
 
 
+def test_material_extensions_are_plain_json_the_stage_cache_stores(tmp_path):
+    from sssbake.pipeline.bake.cache_codec import dumps, loads
+
+    gltf = _two_node_gltf(_png())
+    scatter = {"multiscatterColor": [0.9, 0.5, 0.2], "scatterAnisotropy": 0.0}
+    gltf.materials[0].extensions["KHR_materials_volume"]["thicknessTexture"] = {"index": 0, "texCoord": 0}
+    gltf.materials[0].extensions["KHR_materials_volume_scatter"] = scatter
+    gltf.extensionsUsed.append("KHR_materials_volume_scatter")
+    gltf.extensionsRequired = ["KHR_materials_volume_scatter"]  # read, so a file may require it
+    gltf.save_binary(str(tmp_path / "a.glb"))
+    scene = load_scene(tmp_path / "a.glb")
+    wax = scene.materials[0]
+    assert wax.volume_scatter == scatter and scene.materials[1].volume_scatter is None
+    assert type(wax.volume["thicknessTexture"]) is dict
+    # a GltfObject in it was refused: no glTF with a volume thickness texture (any sssbake output) baked
+    assert loads(b"".join(dumps(scene))).materials[0] == wax
+
+    gltf.materials[0].extensions["KHR_materials_volume_scatter"] = [0.9, 0.5, 0.2]
+    gltf.save_binary(str(tmp_path / "b.glb"))
+    with pytest.raises(AssetError, match=r"material 0: KHR_materials_volume_scatter is \[0.9, 0.5, 0.2\], not an object"):
+        load_scene(tmp_path / "b.glb")
+
+
 def test_interleaved_normalized_sparse_and_extra_uv_sets(tmp_path):
     n = 4
     vertex = np.zeros(n, dtype=[("p", "<f4", 3), ("c", "<u2", 3), ("pad", "u1", 2)])

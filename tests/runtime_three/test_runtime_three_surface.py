@@ -1,6 +1,6 @@
 """The three.js runtime's surface terms beyond the moderngl runtime, in headless Chromium: every mode
 keeps the glTF material's base-colour texture; screen adds the light a thin part transmits from
-behind (its fallback's diffuse transmission); the fallback mode draws what three.js draws of the
+behind (the slab transmittance the bake writes); the fallback mode draws what three.js draws of the
 file without the plugin. One page renders every job (``render.js``); the figures are printed."""
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ import numpy as np
 import pygltflib
 import pytest
 
+from sssbake.pipeline.bake.fallback import slab_totals
+from sssbake.pipeline.core.materials import Material
 from sssbake.pipeline.mesh.load import load_scene
 from sssbake.pipeline.render.renderer import DEFAULT_LIGHT
 from tests.browser import have_chromium
@@ -110,16 +112,15 @@ def test_every_mode_keeps_the_base_colour_texture(rendered):
 
 
 def fallback_transmittance(path) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-    """T(d) = (1 - t) f c of the file's fallback, its σ_tr (1/mm) from the volume attenuation, the
-    median baked thickness d (mm) and the per-vertex thickness, as read back with pygltflib."""
+    """The slab transmittance T(d) the file carries (checked against the multipole model at the
+    median d here), σ_tr = sqrt(3 σ_a σ'_t) (1/mm) of its medium, the median baked thickness d (mm)
+    and the per-vertex thickness, as read back with pygltflib."""
     gltf = pygltflib.GLTF2.load(str(path))
-    ext = gltf.materials[0].extensions
-    diffuse = ext["KHR_materials_diffuse_transmission"]
-    volume = ext["KHR_materials_volume"]
-    scale = gltf.meshes[0].extensions["SSSBAKE_subsurface"]["scaleMm"]
-    transmit = ((1 - ext["KHR_materials_transmission"]["transmissionFactor"]) * diffuse["diffuseTransmissionFactor"]
-                * np.asarray(diffuse["diffuseTransmissionColorFactor"]))
-    sigma = -np.log(volume["attenuationColor"]) / (volume["attenuationDistance"] * scale)
+    sss = gltf.materials[0].extensions["SSSBAKE_subsurface"]
+    medium = sss["material"]
+    absorb, scatter = np.asarray(medium["sigma_a"]), np.asarray(medium["sigma_s_prime"])
+    sigma = np.sqrt(3 * absorb * (absorb + scatter))
+    transmit = np.asarray(sss["slabTransmittance"])
     thickness = load_scene(str(path)).meshes[0].primitives[0]
     accessor = gltf.accessors[gltf.meshes[0].primitives[0].attributes._THICKNESS]
     view = gltf.bufferViews[accessor.bufferView]
@@ -127,6 +128,8 @@ def fallback_transmittance(path) -> tuple[np.ndarray, np.ndarray, float, np.ndar
     start = (view.byteOffset or 0) + (accessor.byteOffset or 0)
     values = np.frombuffer(blob[start:start + 12 * accessor.count], np.float32).reshape(-1, 3)[:, 0]
     assert len(values) == len(thickness.positions)
+    material = Material(medium["name"], scatter, absorb, medium["eta"], medium["profile"])
+    np.testing.assert_allclose(transmit, slab_totals(material, float(np.median(values)))[1], rtol=1e-5)
     return transmit, sigma, float(np.median(values)), values
 
 
