@@ -90,7 +90,8 @@ def test_fallback_is_translucent_in_threejs(baked, tmp_path, monkeypatch):
     site = tmp_path / "site"
     site.mkdir()
     os.symlink(REPO / "node_modules" / "three", site / "three")
-    shutil.copy(REPO / "tests" / "js" / "fallback.html", site / "fallback.html")
+    for page in ("fallback.html", "fallback_page.mjs"):
+        shutil.copy(REPO / "tests" / "js" / page, site / page)
     captured: dict = {}
 
     def capture(path, positions, camera, light, size, reference, mask, exposure, png):
