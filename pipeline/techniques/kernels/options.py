@@ -43,14 +43,14 @@ class KernelsPrecomputeOptions:
         Largest size of F (fIndptr, fIndices, fValues as stored) per welded surface vertex, in
         bytes (`global_budget`); 0: unbounded (F as thresholded, on at most `global_vertices`).
     f_floor_mb : float
-        MiB within which F is kept whole, as with `f_bytes` 0, whatever `f_bytes` gives
-        (`precompute.whole_entries`); 0: no floor. The per-vertex bound is for large meshes, where F
-        grows as n²: on small ones each source's dropped entries are the long-range ones that carry
-        light through the object (samples/torus.ply, 1,408 vertices, marble against the path-traced
-        truth: block RMSE 0.179 front-lit and 0.945 back-lit at 64 B per vertex, 0.044 and 0.437
-        whole). 32 MiB holds the whole F of the torus (14.8 MB), sphere and thin_slab (marble, 1 mm
-        a unit), less than the kernels' other tables there (~45 MB on the torus); a larger F (the
-        blob's, 2,562 vertices) is bounded by `f_bytes` as before.
+        MiB F may always take whatever `f_bytes` gives (`precompute.f_room`); 0: no floor. Where F
+        fits its room it is kept whole, as with `f_bytes` 0. The per-vertex bound is for large
+        meshes, where F grows as n² (above 524,288 vertices 64 B a vertex passes 32 MiB); on smaller
+        ones the entries it drops are the long-range ones that carry light through the object
+        (marble at 1 mm a unit against the path-traced truth, block RMSE front / back-lit:
+        samples/torus.ply, 1,408 vertices, 0.179 / 0.945 at 64 B a vertex, 0.044 / 0.437 whole, F
+        14.8 MB; samples/blob.obj, 2,562 vertices, 0.118 / 0.658 at 64 B a vertex, 0.057 / 0.386 in
+        32 MiB), in files whose other kernels tables already take tens of MB.
     """
 
     kernel_size: int = 7
@@ -105,9 +105,10 @@ class KernelsOptions:
     f_bytes: float = option(_D.f_bytes, "kernels: largest size of the global response F per vertex in bytes: a "
                                         "coarser global mesh and each source's strongest entries, 0 for unbounded "
                                         "(default {default})", range=F_BYTES)
-    f_floor_mb: float = option(_D.f_floor_mb, "kernels: the global response F is kept whole (not bounded by "
-                                              "--kernels-f-bytes) where it fits in this many MiB, so that small meshes "
-                                              "keep their light through the object; 0 for no floor (default {default})", range=F_FLOOR_MB)
+    f_floor_mb: float = option(_D.f_floor_mb, "kernels: MiB the global response F may always take whatever "
+                                              "--kernels-f-bytes gives (kept whole where it fits), so that meshes below "
+                                              "~500k vertices keep the light through the object; 0 for no floor "
+                                              "(default {default})", range=F_FLOOR_MB)
     # 8-bit codes: the hand's image RMSE is 0.0074747 against 0.0074749 with 16, in 27 % less file
     bits: int = option(8, "kernels: bits per stored kernel weight (default {default})", choices=KERNEL_BITS)
 

@@ -19,9 +19,9 @@ Discretisation (float64 throughout, lengths in mm):
   simplified copy when the surface has more than ``global_vertices`` or more than F's byte budget
   allows (texel points located on it, `surface_locate`; each surface vertex then blends three of its
   vertices).
-- F's bytes: F is whole where ``f_floor_mb`` MiB hold it (`whole_entries`: small meshes, as with
-  ``f_bytes`` 0); else ``f_bytes`` per surface vertex (`global_budget`): the global mesh gets at most
-  as many vertices as leave `ROW_ENTRIES` entries each, and each source keeps its strongest entries
+- F's bytes: ``f_bytes`` per surface vertex but at least ``f_floor_mb`` MiB (`f_room`). F is whole
+  where that holds it (small meshes, as with ``f_bytes`` 0); else the global mesh (`global_budget`)
+  gets at most as many vertices as leave `ROW_ENTRIES` entries each, and each source keeps its strongest entries
   beyond the kernels' window within the budget, renormalised to send what its entries beyond the
   window sent (`throughput.strongest_per_source`); the blending below fits the kernels to that F.
 - Blending (``blend="optimised"``, `_blend`): w(s) per channel by least squares so that g matches T
@@ -96,46 +96,53 @@ def f_entry_bytes(vertex_count: int) -> int:
     return F_VALUE_BYTES + (2 if vertex_count < 65536 else 4)
 
 
+def f_room(surface_vertices: int, options: KernelsPrecomputeOptions) -> float:
+    """Bytes F may take on a surface of `surface_vertices` welded vertices: ``f_bytes`` per vertex,
+    never less than ``f_floor_mb`` MiB; 0: unbounded. The per-vertex bound is for large meshes,
+    where F grows as n²; on smaller ones the entries it drops are the long-range ones that carry
+    light through the object (see `KernelsPrecomputeOptions.f_floor_mb`)."""
+    if not options.f_bytes:
+        return 0.0
+    return max(options.f_bytes * surface_vertices, options.f_floor_mb * 2**20)
+
+
 def global_budget(surface_vertices: int, options: KernelsPrecomputeOptions) -> int:
     """Vertices of the global mesh for a surface of `surface_vertices` welded vertices: the surface's
-    own count, capped by ``global_vertices`` and, with a byte budget, by what leaves `ROW_ENTRIES`
-    entries per global vertex (never below `MIN_GLOBAL`, nor above the surface's)."""
+    own count, capped by ``global_vertices`` and, with a byte budget (`f_room`), by what leaves
+    `ROW_ENTRIES` entries per global vertex (never below `MIN_GLOBAL`, nor above the surface's)."""
     n = surface_vertices
     if options.global_vertices:
         n = min(n, options.global_vertices)
-    if options.f_bytes:
-        room = options.f_bytes * surface_vertices
+    room = f_room(surface_vertices, options)
+    if room:
         n = min(n, max(MIN_GLOBAL, int(room / (ROW_ENTRIES * f_entry_bytes(n) + F_ROW_BYTES))))
     return min(n, surface_vertices)
 
 
-def entries_per_source(surface_vertices: int, global_vertices: int, f_bytes: float) -> int:
-    """Entries each source of F keeps so that F fits ``f_bytes`` per surface vertex; 0: unbounded.
+def f_entries(surface_vertices: int, global_vertices: int, options: KernelsPrecomputeOptions) -> int:
+    """Entries F's room (`f_room`) holds over `global_vertices`, its fIndptr rows taken out; 0: unbounded."""
+    room = f_room(surface_vertices, options)
+    if not room:
+        return 0
+    return max(0, int((room - F_ROW_BYTES * (global_vertices + 1)) // f_entry_bytes(global_vertices)))
+
+
+def entries_per_source(surface_vertices: int, global_vertices: int, options: KernelsPrecomputeOptions) -> int:
+    """Entries each source of F keeps so that F fits its room (`f_room`); 0: unbounded.
 
     Raises
     ------
     ValueError
-        The budget does not hold one entry per global vertex (naming ``--kernels-f-bytes``).
+        The room does not hold one entry per global vertex (naming the two knobs).
     """
-    if not f_bytes:
+    if not f_room(surface_vertices, options):
         return 0
-    room = f_bytes * surface_vertices - F_ROW_BYTES * (global_vertices + 1)
-    keep = int(room // (f_entry_bytes(global_vertices) * global_vertices))
+    keep = f_entries(surface_vertices, global_vertices, options) // global_vertices
     if keep < 1:
-        raise ValueError(f"kernels: F's budget of {f_bytes:g} B per vertex holds no entry for {global_vertices} global "
-                         f"vertices over {surface_vertices}; raise --kernels-f-bytes")
+        raise ValueError(f"kernels: F's budget of {options.f_bytes:g} B per vertex (at least {options.f_floor_mb:g} MiB) "
+                         f"holds no entry for {global_vertices} global vertices over {surface_vertices}; raise "
+                         "--kernels-f-bytes or --kernels-f-floor-mb")
     return keep
-
-
-def whole_entries(global_vertices: int, options: KernelsPrecomputeOptions) -> int:
-    """Entries of F, over `global_vertices`, that ``f_floor_mb`` holds whole (its fIndptr rows taken
-    out); 0 without a bound or a floor. The per-vertex bound only ever applies to an F larger than
-    this: on small meshes the entries it drops are the long-range ones that carry light through
-    the object."""
-    if not (options.f_bytes and options.f_floor_mb):
-        return 0
-    room = options.f_floor_mb * 2**20 - F_ROW_BYTES * (global_vertices + 1)
-    return max(0, int(room // f_entry_bytes(global_vertices)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,8 +264,8 @@ def precompute_kernels(surface: Surface, atlas: Atlas, primitives: list[tuple[np
     correct_kernels = options.blend != "none"
     throughput = throughput_matrix(g_pos * mm_per_unit, g_faces, g_normals, params, options.threshold,
                                    diagonal=options.blend == "none",
-                                   per_source=entries_per_source(n_s, len(g_pos), options.f_bytes),
-                                   whole_entries=whole_entries(len(g_pos), options),
+                                   per_source=entries_per_source(n_s, len(g_pos), options),
+                                   whole_entries=f_entries(n_s, len(g_pos), options),
                                    beyond_mm=r * float(np.sqrt(np.median(area[:s_count]))) if correct_kernels else 0.0)
     seconds["throughput"] = time.perf_counter() - t
 

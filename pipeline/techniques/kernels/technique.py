@@ -12,7 +12,7 @@ from sssbake.pipeline.techniques.technique import MESH, Technique
 
 class Kernels(KernelsStage, KernelsVerify, KernelsTradeoff, KernelsEntry, Technique):
     scope = MESH
-    stage_version = 5
+    stage_version = 6
     needs_atlas = True
     draw_unit = "mesh"
     vertex_keys = ("sss:kernels:",)  # _SSS_KERNELS_VERTEX (layout.VERTEX_KEY)

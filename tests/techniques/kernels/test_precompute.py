@@ -16,8 +16,9 @@ from sssbake.pipeline.techniques.kernels.precompute import (
     KernelsPrecomputeOptions,
     entries_per_source,
     global_budget,
+    f_entries,
+    f_room,
     precompute_kernels,
-    whole_entries,
 )
 
 SKIN = preset("skin1")
@@ -182,18 +183,20 @@ def test_the_budget_sets_the_global_mesh_and_the_entries_per_source():
     options = KernelsPrecomputeOptions()  # 64 B per vertex, at most 20,000 global vertices
     assert global_budget(50_000, options) == 20_000
     # 64 · 50,000 bytes less 4 per fIndptr row, at 14 bytes an entry (uint16 sources)
-    assert entries_per_source(50_000, 20_000, 64.0) == (64 * 50_000 - 4 * 20_001) // (14 * 20_000) == 11
-    assert entries_per_source(50_000, 20_000, 0.0) == 0  # unbounded
-    # F whole where the 32 MiB floor holds it: its bytes less the fIndptr rows, at 14 bytes an entry
-    assert whole_entries(20_000, options) == (32 * 2**20 - 4 * 20_001) // 14
-    assert whole_entries(20_000, KernelsPrecomputeOptions(f_floor_mb=0)) == 0
-    assert whole_entries(20_000, KernelsPrecomputeOptions(f_bytes=0)) == 0  # unbounded: nothing to keep whole
+    bare = KernelsPrecomputeOptions(f_floor_mb=0)
+    assert entries_per_source(50_000, 20_000, bare) == (64 * 50_000 - 4 * 20_001) // (14 * 20_000) == 11
+    assert entries_per_source(50_000, 20_000, KernelsPrecomputeOptions(f_bytes=0)) == 0  # unbounded
+    # the 32 MiB floor outweighs 64 B a vertex below 524,288 vertices; 64 B a vertex above
+    assert f_room(50_000, options) == 32 * 2**20 and f_room(600_000, options) == 64 * 600_000
+    assert f_entries(50_000, 20_000, options) == (32 * 2**20 - 4 * 20_001) // 14
+    assert entries_per_source(50_000, 20_000, options) == (32 * 2**20 - 4 * 20_001) // (14 * 20_000) == 119
+    assert f_room(50_000, KernelsPrecomputeOptions(f_bytes=0)) == 0  # unbounded: no room to keep to
     # 16 bytes a vertex hold no entry on the surface's own vertices: the budget coarsens the mesh
     small = KernelsPrecomputeOptions(f_bytes=16, global_vertices=0, f_floor_mb=0)
     assert global_budget(10_000, small) == int(16 * 10_000 / (4 * 14 + 4)) == 2666
-    assert entries_per_source(10_000, 2666, 16.0) >= 1
-    with pytest.raises(ValueError, match="--kernels-f-bytes"):
-        entries_per_source(100, 100, 16.0)
+    assert entries_per_source(10_000, 2666, small) >= 1
+    with pytest.raises(ValueError, match="--kernels-f-bytes or --kernels-f-floor-mb"):
+        entries_per_source(100, 100, small)
 
 
 def test_the_floor_keeps_a_small_meshs_f_whole_as_unbounded(surface, bakes):
