@@ -1,7 +1,7 @@
 """``<stem>.materials.json``: every translucent material's engine-native subsurface parameters.
 
 One record per translucent material of the asset (`engine_materials.engine_materials`), keyed by
-the material's name as exported, under the asset's one scale (`usd.meters_per_unit`, the same the
+the material's name as exported, under the asset's one scale (`usd.mm_per_unit`, the same the
 .usdc declares and its ``sss:openpbr:*`` attributes are written at)::
 
     {"schema": 1, "asset": <stem>, "scaleMm": <mm per file unit>,
@@ -19,16 +19,11 @@ import os
 from pathlib import Path
 
 from sssbake.exporters.atomic import atomic_path
-from sssbake.exporters.usd import meters_per_unit
+from sssbake.exporters.usd import mm_per_unit
 from sssbake.pipeline.core.engine_materials import engine_materials, khr_materials_volume_scatter
 from sssbake.pipeline.mesh.baked import BakedAsset
 
 SCHEMA = 1
-
-
-def mm_per_unit(asset: BakedAsset) -> float:
-    """Millimetres per file unit every record is written at: the .usdc's (`usd.meters_per_unit`)."""
-    return meters_per_unit(asset) * 1000.0
 
 
 def khr_volume_scatter(asset: BakedAsset) -> dict[int, dict]:

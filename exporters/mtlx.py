@@ -13,7 +13,7 @@ inputs from the material's factors: ``base_color``, ``base_metalness``, ``specul
 ``specular_ior`` (when the material has an ior) and ``geometry_opacity`` (the base colour's alpha).
 A translucent material's base colour, ior and opacity are its fallback's (`baked.Fallback`: R_d, the
 material's ior, 1) and it gets the subsurface inputs of `engine_materials.openpbr_subsurface` at the
-.usdc's scale (`usd.meters_per_unit` × 1000 mm per file unit), so ``subsurface_radius`` is in file
+.usdc's scale (`usd.mm_per_unit`), so ``subsurface_radius`` is in file
 units and equals the .usdc's ``sss:openpbr:subsurfaceRadius``. Textures and emission are not carried
 (glTF's emissive factor has no luminance for OpenPBR's ``emission_luminance``), nor sssbake's baked
 data: the document describes the medium for a renderer's own subsurface, not the bake's techniques.
@@ -31,7 +31,7 @@ import numpy as np
 
 from sssbake.exporters.atomic import atomic_path
 from sssbake.exporters.finite import check_finite, finite_number
-from sssbake.exporters.usd import material_prim_names, meters_per_unit
+from sssbake.exporters.usd import material_prim_names, mm_per_unit
 from sssbake.pipeline.core.engine_materials import openpbr_subsurface
 from sssbake.pipeline.mesh.baked import BakedAsset, check_material_references
 
@@ -51,7 +51,7 @@ def to_document(asset: BakedAsset) -> mx.Document:
     """
     check_material_references(asset)
     doc = mx.createDocument()
-    mm_per_unit = meters_per_unit(asset) * 1000.0
+    scale = mm_per_unit(asset)
     names = material_prim_names(asset.scene.materials)
     # shader names are unique among the material names too: one namespace per document
     taken = set(names)
@@ -63,7 +63,7 @@ def to_document(asset: BakedAsset) -> mx.Document:
         taken.add(shader_name)
         shader = doc.addNode("open_pbr_surface", shader_name, "surfaceshader")
         shader.setNodeDefString(OPENPBR_NODEDEF)
-        for input_name, value in _inputs(src, asset.scattering.get(m), mm_per_unit, what):
+        for input_name, value in _inputs(src, asset.scattering.get(m), scale, what):
             _set(shader, input_name, value, what)
         doc.addMaterialNode(name, shader)
     return doc

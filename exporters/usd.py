@@ -122,6 +122,12 @@ def meters_per_unit(asset: BakedAsset) -> float:
     return 1.0
 
 
+def mm_per_unit(asset: BakedAsset) -> float:
+    """Millimetres per file unit of the stage (`meters_per_unit` × 1000): the unit the .usdc's
+    scattering attributes, the .mtlx and the materials JSON give lengths in."""
+    return meters_per_unit(asset) * 1000.0
+
+
 def thickness_texture_files(asset: BakedAsset, stem: str) -> dict[int, str]:
     """Texture index -> file name (``<stem>.thickness<k>.png``, k in order of first use) of every
     thickness texture a translucent material uses: what `write_usdc` writes next to the .usdc.
@@ -593,7 +599,7 @@ def _materials(stage: Usd.Stage, scope_path: Sdf.Path, asset: BakedAsset,
         if scattering is not None:
             what = f"material {src.name!r}"
             material.GetPrim().SetCustomDataByKey("sssbake:previewSurface", PREVIEW_SURFACE_NOTE)
-            for name, type_name, value in _scattering_attributes(scattering, meters_per_unit(asset) * 1000.0, what):
+            for name, type_name, value in _scattering_attributes(scattering, mm_per_unit(asset), what):
                 material.GetPrim().CreateAttribute(name, type_name, custom=True).Set(value)
             ref = scattering.fallback.thickness_texture
             if ref is not None and ref.texture in texture_files:

@@ -11,7 +11,8 @@ import pytest
 from test_gltf import icosphere_asset
 
 from sssbake.exporters.gltf import EXTENSION, VOLUME_SCATTER, to_glb
-from sssbake.exporters.materials_json import khr_volume_scatter, materials_document, mm_per_unit
+from sssbake.exporters.materials_json import khr_volume_scatter, materials_document
+from sssbake.exporters.usd import mm_per_unit
 from sssbake.pipeline.core.engine_materials import khr_materials_volume_scatter
 from sssbake.pipeline.core.materials import preset
 
