@@ -8,7 +8,8 @@ own children: the atlas runs xatlas in a grandchild) holds more than `Limits.mem
 resident memory, kills the whole tree and records one line naming the flag to raise. A child that
 dies on its own (a signal, ``os._exit``) is a one-line failure too. Either way its half-written
 outputs (`atomic.temporary_target` names of its own outputs, its staging folder: `bake.staging`)
-and its private temporary folder (``TMPDIR`` of the child) are removed at once; the stage cache's
+and its private temporary folder (``TMPDIR`` of the child) are removed as soon as its whole tree has
+exited (`_wait_exited`: a process killed in a system call finishes it first); the stage cache's
 temporaries of a killed child are swept at the end of the batch (`batch.run_batch`).
 
 Memory is measured by polling, not with ``RLIMIT_AS``: address-space limits count reservations,
@@ -76,6 +77,9 @@ PRELOAD = ["sssbake.pipeline.bake.batch", "sssbake.pipeline.bake.asset", "sssbak
 # Output suffixes one bake writes (`bake.bake_asset`), for removing a killed child's temporaries.
 OUTPUT_SUFFIXES = (".glb", ".usdc", ".report.json", ".sss_normals.glb")
 _GIB = 1024.0**3
+# Seconds a killed child's descendants may take to exit (one in a system call ends it first): beyond,
+# one blocked on a hung disk, its temporaries are left to the next batch (`sweep_orphaned_folders`).
+EXIT_WAIT_S = 10.0
 # A child's private temporary folder: ``<tempdir>/sssbake-asset-<supervisor's pid>-<random>``.
 FOLDER_PREFIX = "sssbake-asset-"
 # What stops a batch (`stop_on_signals`): Ctrl-C, kill's default, a closed terminal.
@@ -112,10 +116,10 @@ class Interrupted(KeyboardInterrupt):
 
 @contextlib.contextmanager
 def stop_on_signals() -> Iterator[None]:
-    """Within the block, `STOP_SIGNALS` raise `Interrupted`; one more while the batch stops is
-    ignored, as the stopping (killing the children, removing their temporaries) is quick and, cut
-    short, would leave children baking on. Entered in another thread than the main one, which alone
-    may handle signals, it changes nothing."""
+    """Within the block, `STOP_SIGNALS` raise `Interrupted` (within `signals_held`, as it ends); one
+    more while the batch stops is ignored, as the stopping (killing the children, removing their
+    temporaries) is quick and, cut short, would leave children baking on. Entered in another thread
+    than the main one, which alone may handle signals, it changes nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -123,22 +127,35 @@ def stop_on_signals() -> Iterator[None]:
     def handler(signum, _frame):
         for s in STOP_SIGNALS:
             signal.signal(s, signal.SIG_IGN)
-        raise Interrupted(signum)
+        if _HELD[0]:
+            _DEFERRED.append(signum)
+        else:
+            raise Interrupted(signum)
 
     old = {s: signal.signal(s, handler) for s in STOP_SIGNALS}
     try:
         yield
     finally:
+        _DEFERRED.clear()
         for s, h in old.items():
             signal.signal(s, h)
 
 
+# How deep the main thread is in `signals_held`, and the stop signal its handler put off meanwhile.
+_HELD = [0]
+_DEFERRED: list[int] = []
+
+
 @contextlib.contextmanager
 def signals_held() -> Iterator[None]:
-    """Block `STOP_SIGNALS` in this thread within the block; one sent meanwhile is delivered as it ends.
+    """Hold `STOP_SIGNALS` within the block; one sent meanwhile raises `Interrupted` as it ends.
 
     A batch stopped in the middle of a look could leave a child started but not yet watched, or
-    ended but not yet cleaned up after. Processes started within inherit the signals blocked.
+    ended but not yet cleaned up after. The signals are blocked in this thread, so that processes
+    started within inherit them blocked; and in the main thread `stop_on_signals`'s handler puts one
+    off to the block's end, as blocking is not enough there: the kernel hands a process's signal to
+    any thread not blocking it (OpenBLAS's, started as numpy is imported), and Python then runs its
+    handler in the main thread at once.
 
     multiprocessing's resource tracker unblocks SIGINT and SIGTERM in the thread that starts it
     (and its fork server starts it): start it first (`resource_tracker.ensure_running`), so that it
@@ -147,11 +164,16 @@ def signals_held() -> Iterator[None]:
     if not hasattr(signal, "pthread_sigmask"):  # not POSIX
         yield
         return
+    main = threading.current_thread() is threading.main_thread()
     old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    _HELD[0] += main
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)  # one pending in this thread is handled (put off) now
+        _HELD[0] -= main
+    if main and not _HELD[0] and _DEFERRED:
+        raise Interrupted(_DEFERRED.pop())
 
 
 @dataclass(frozen=True)
@@ -370,6 +392,10 @@ class _Child:
             self.proc.join()
         else:
             self.proc.wait()
+        # Its descendants are not ours to reap: wait for them to have exited, as one killed in a
+        # system call (creating a file in its temporary folder) ends that call first, and would put
+        # back what `clean` had just removed.
+        _wait_exited(self.pid, set(self.tree.members))
         self.tree.close()
 
     def clean(self) -> None:
@@ -499,17 +525,35 @@ def _pids() -> list[int]:
 
 def _parent(pid: int) -> int | None:
     """Process `pid`'s parent pid; None once it has ended."""
+    return None if (stat := _stat(pid)) is None else stat[1]
+
+
+def _stat(pid: int) -> tuple[str, int, int] | None:
+    """Process `pid`'s state (``"Z"``: exited, not yet reaped), parent pid and process group; None once it has ended."""
     if not _PROCFS:
         try:
-            return psutil.Process(pid).ppid()
-        except psutil.Error:
+            with psutil.Process(pid).oneshot() as p:
+                return ("Z" if p.status() == psutil.STATUS_ZOMBIE else "R"), p.ppid(), os.getpgid(pid)
+        except (psutil.Error, OSError):
             return None
     try:
         with open(f"/proc/{pid}/stat", "rb") as f:
-            # after the command's name (which may hold spaces and parentheses): state, then ppid (proc(5))
-            return int(f.read().rpartition(b")")[2].split()[1])
-    except (OSError, IndexError, ValueError):  # ended meanwhile
+            # after the command's name (which may hold spaces and parentheses): state, ppid, pgrp (proc(5))
+            state, ppid, pgrp = f.read().rpartition(b")")[2].split()[:3]
+            return state.decode(), int(ppid), int(pgrp)
+    except (OSError, ValueError):  # ended meanwhile
         return None
+
+
+def _wait_exited(group: int, pids: set[int]) -> None:
+    """Wait until every process of process group `group` and of `pids`, all sent SIGKILL, has
+    exited (a zombie, or gone), for at most `EXIT_WAIT_S`."""
+    until = time.monotonic() + EXIT_WAIT_S
+    while time.monotonic() < until:
+        if not any((stat := _stat(pid)) is not None and stat[0] not in "ZX" and (pid in pids or stat[2] == group)
+                   for pid in _pids()):
+            return
+        time.sleep(0.001)
 
 
 def _watch(pid: int):

@@ -3,6 +3,7 @@ descendants' memory counted), or whose worker crashes, fails alone with one line
 neighbour bakes, and leaves nothing behind: no output, no temporary of its outputs or of the stage
 cache, no private temporary folder. A stop signal ends the batch the same way for every worker."""
 
+import contextlib
 import fcntl
 import multiprocessing
 import os
@@ -24,7 +25,7 @@ from generate import blob
 from waiting import until_done, wait_for
 
 from sssbake.exporters.atomic import atomic_path
-from sssbake.pipeline.bake.asset_process import Interrupted, stop_on_signals, tree_rss
+from sssbake.pipeline.bake.asset_process import Interrupted, signals_held, stop_on_signals, tree_rss
 from sssbake.pipeline.bake.batch import LOCK_NAME, run_batch
 from sssbake.pipeline.cli import main
 from sssbake.pipeline.config import BatchConfig, load_config
@@ -144,6 +145,24 @@ def test_each_stop_signal_raises_interrupted(signum):
     assert str(caught.value) == f"interrupted by {signal.Signals(signum).name} before any asset was baked; nothing " \
                                 "was written"
     assert signal.getsignal(signum) == before
+
+
+def test_a_stop_signal_taken_by_another_thread_waits_for_the_held_block_to_end():
+    # blocked in the main thread, a signal goes to another (OpenBLAS's in a batch, this helper here),
+    # and Python runs its handler in the main thread at once: it must wait for the block's end
+    go, reached = threading.Event(), []
+    sender = threading.Thread(target=lambda: go.wait() and os.kill(os.getpid(), signal.SIGTERM))
+    sender.start()  # before the block: its mask lets the signal through
+    with pytest.raises(Interrupted) as caught, stop_on_signals():
+        with signals_held():
+            go.set()
+            sender.join()
+            for _ in range(200):  # bytecode boundaries, where Python runs a handler
+                time.sleep(0.001)
+            reached.append("the block's end")
+        time.sleep(60)  # not reached: the block's end raises
+    assert reached == ["the block's end"] and caught.value.signum == signal.SIGTERM
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
 
 
 def test_a_stop_signal_ends_the_batch_and_leaves_nothing(tmp_path, private_tmp, capfd):
@@ -291,6 +310,35 @@ def test_tree_rss_counts_the_descendants(tmp_path):
         os.killpg(child.pid, signal.SIGKILL)
         child.wait()
     assert tree_rss(child.pid) == 0
+
+
+def test_a_killed_childs_descendants_are_waited_for_until_they_have_exited(monkeypatch):
+    from sssbake.pipeline.bake import asset_process
+
+    # a child with a grandchild in its group, unknown to the caller (as one started since the last
+    # listing); the child is reaped here, the grandchild is not this process's to reap
+    code = ("import subprocess, sys, time; "
+            "subprocess.Popen([sys.executable, '-c', 'import time; print(flush=True); time.sleep(600)']); "
+            "time.sleep(600)")
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        child.stdout.readline()
+        (grandchild,) = psutil.Process(child.pid).children()
+        monkeypatch.setattr(asset_process, "EXIT_WAIT_S", 0.5)
+        t0 = time.monotonic()
+        asset_process._wait_exited(child.pid, set())  # nothing killed: it waits its whole limit
+        assert time.monotonic() - t0 >= 0.5
+        assert grandchild.is_running() and grandchild.status() != psutil.STATUS_ZOMBIE
+        monkeypatch.setattr(asset_process, "EXIT_WAIT_S", 600.0)
+        os.killpg(child.pid, signal.SIGKILL)
+        child.wait()
+        asset_process._wait_exited(child.pid, set())
+        # what `clean` removes next cannot be written to again by it
+        assert not grandchild.is_running() or grandchild.status() == psutil.STATUS_ZOMBIE
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(child.pid, signal.SIGKILL)
+        child.wait()
 
 
 def test_isolate_false_bakes_in_this_process(tmp_path, monkeypatch):
